@@ -1,0 +1,732 @@
+//! The rlpkg dataset format: a folder with `manifest.toml` and one folder per trajectory holding
+//! `tool.csv`, `object.csv`, `markers.csv` and `meta.toml` (see `data/deformable-sim-real/README.md`).
+//!
+//! Every reader validates what it reads and names the file, the line and what was expected when
+//! something is off; every writer writes a temporary file beside the target and renames it, so a
+//! failed write never leaves a half-written file.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+/// Header of `tool.csv`.
+pub const TOOL_HEADER: [&str; 20] = [
+    "t", "px", "py", "pz", "qx", "qy", "qz", "qw", "vx", "vy", "vz", "wx", "wy", "wz", "ax", "ay",
+    "az", "alpha_x", "alpha_y", "alpha_z",
+];
+/// Header of `object.csv`.
+pub const OBJECT_HEADER: [&str; 10] = ["t", "px", "py", "pz", "vx", "vy", "vz", "ax", "ay", "az"];
+/// Header of `markers.csv`.
+pub const MARKERS_HEADER: [&str; 5] = ["frame", "t", "x", "y", "z"];
+
+/// Largest difference (s) allowed between a marker row's time and its frame's tool time.
+const TIME_TOLERANCE_S: f64 = 1e-5;
+
+/// What went wrong while reading or writing a dataset; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    /// The file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's error.
+        source: std::io::Error,
+    },
+    /// A line of the file is malformed.
+    #[error("{path}:{line}: {message}")]
+    Malformed {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong and what was expected.
+        message: String,
+    },
+    /// The file is well formed but its content is not acceptable.
+    #[error("{path}: {message}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and what was expected.
+        message: String,
+    },
+}
+
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> DataError + '_ {
+    move |source| DataError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn invalid(path: &Path, message: impl Into<String>) -> DataError {
+    DataError::Invalid {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Which part of the dataset a trajectory belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Split {
+    /// Used for calibration.
+    Train,
+    /// Held out for evaluation.
+    Test,
+}
+
+impl std::str::FromStr for Split {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "train" => Ok(Split::Train),
+            "test" => Ok(Split::Test),
+            other => Err(format!("expected \"train\" or \"test\", got {other:?}")),
+        }
+    }
+}
+
+/// One `[[trajectory]]` entry of `manifest.toml`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ManifestEntry {
+    /// Folder name of the trajectory.
+    pub id: String,
+    /// Train or test.
+    pub split: Split,
+    /// Mass class of the internal object (low / medium / high), when known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass: Option<String>,
+    /// Added weight in pounds, when known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass_lb: Option<f64>,
+    /// Velocity level, when known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub velocity: Option<String>,
+    /// Orientation level, when known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation: Option<String>,
+    /// Number of frames.
+    pub frames: usize,
+    /// Time of the last frame (s).
+    pub duration_s: f64,
+    /// Mass of the internal object with its added weight (kg).
+    pub object_total_mass_kg: f64,
+    /// Fewest markers seen in a frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub markers_per_frame_min: Option<usize>,
+    /// Most markers seen in a frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub markers_per_frame_max: Option<usize>,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Manifest {
+    trajectory: Vec<ManifestEntry>,
+}
+
+/// A dataset folder: its manifest, with trajectories loaded on demand.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    /// The dataset folder.
+    pub root: PathBuf,
+    /// The manifest's entries, in file order.
+    pub entries: Vec<ManifestEntry>,
+}
+
+impl Dataset {
+    /// Reads `dir/manifest.toml` and checks that every listed trajectory folder exists.
+    pub fn open(dir: &Path) -> Result<Dataset, DataError> {
+        let path = dir.join("manifest.toml");
+        let text = fs::read_to_string(&path).map_err(io_error(&path))?;
+        let manifest: Manifest = toml::from_str(&text).map_err(|err| {
+            let line = err
+                .span()
+                .map(|span| text[..span.start].lines().count().max(1))
+                .unwrap_or(1);
+            DataError::Malformed {
+                path: path.clone(),
+                line,
+                message: err.message().to_string(),
+            }
+        })?;
+        let mut seen = std::collections::HashSet::new();
+        for entry in &manifest.trajectory {
+            if !seen.insert(entry.id.as_str()) {
+                return Err(invalid(&path, format!("trajectory id {:?} is listed twice", entry.id)));
+            }
+            if !dir.join(&entry.id).is_dir() {
+                return Err(invalid(
+                    &path,
+                    format!("trajectory {:?} has no folder {}", entry.id, dir.join(&entry.id).display()),
+                ));
+            }
+        }
+        Ok(Dataset {
+            root: dir.to_path_buf(),
+            entries: manifest.trajectory,
+        })
+    }
+
+    /// Ids of the trajectories in `split` (all of them for `None`), in manifest order.
+    pub fn ids(&self, split: Option<Split>) -> Vec<String> {
+        self.entries
+            .iter()
+            .filter(|entry| split.is_none_or(|s| entry.split == s))
+            .map(|entry| entry.id.clone())
+            .collect()
+    }
+
+    /// Loads trajectory `id`, which must be listed in the manifest.
+    pub fn load(&self, id: &str) -> Result<Trajectory, DataError> {
+        if !self.entries.iter().any(|entry| entry.id == id) {
+            return Err(invalid(
+                &self.root.join("manifest.toml"),
+                format!("no trajectory {id:?}; known ids: {}", self.ids(None).join(", ")),
+            ));
+        }
+        load_trajectory(&self.root.join(id))
+    }
+}
+
+/// Writes `dir/manifest.toml` atomically.
+pub fn write_manifest(dir: &Path, entries: &[ManifestEntry]) -> Result<(), DataError> {
+    let path = dir.join("manifest.toml");
+    let manifest = Manifest {
+        trajectory: entries.to_vec(),
+    };
+    let text = toml::to_string(&manifest).map_err(|err| invalid(&path, err.to_string()))?;
+    write_atomic(&path, text.as_bytes())
+}
+
+/// `meta.toml` of one trajectory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Meta {
+    /// Trajectory id (the folder name).
+    pub id: String,
+    /// Short side and long side of the package (m).
+    pub package_size_m: [f64; 2],
+    /// Film mass of the package (kg).
+    pub package_mass_kg: f64,
+    /// Diameter of the internal disc (m).
+    pub object_diameter_m: f64,
+    /// Mass of the printed body alone (kg).
+    pub object_body_mass_kg: f64,
+    /// Mass of the body with its added weight (kg).
+    pub object_total_mass_kg: f64,
+    /// Package plus object (kg).
+    pub total_mass_kg: f64,
+    /// Centre of the suction cups at the start of the recording (m, world frame).
+    pub initial_suction_cup_position_m: [f64; 3],
+    /// Package markers seen in the first recorded frame (m, world frame), used to place the package.
+    pub initial_marker_positions_m: Vec<[f64; 3]>,
+}
+
+/// Recorded end-effector (suction tool) motion, one row per frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ToolTrack {
+    /// Time (s).
+    pub t: Vec<f64>,
+    /// Position (m).
+    pub position: Vec<[f64; 3]>,
+    /// Orientation as a quaternion (x, y, z, w), unit to within 1e-3 as recorded (6 decimals).
+    pub orientation: Vec<[f64; 4]>,
+    /// Linear velocity (m/s).
+    pub velocity: Vec<[f64; 3]>,
+    /// Angular velocity (rad/s).
+    pub angular_velocity: Vec<[f64; 3]>,
+    /// Linear acceleration (m/s²).
+    pub acceleration: Vec<[f64; 3]>,
+    /// Angular acceleration (rad/s²).
+    pub angular_acceleration: Vec<[f64; 3]>,
+}
+
+/// Recorded motion of the internal object's centre, one row per frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ObjectTrack {
+    /// Time (s).
+    pub t: Vec<f64>,
+    /// Position (m).
+    pub position: Vec<[f64; 3]>,
+    /// Velocity (m/s).
+    pub velocity: Vec<[f64; 3]>,
+    /// Acceleration (m/s²).
+    pub acceleration: Vec<[f64; 3]>,
+}
+
+/// Unlabelled package markers seen in each frame (their order within a frame carries no identity).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MarkerFrames {
+    t: Vec<f64>,
+    /// `offsets[k]..offsets[k + 1]` indexes `points` for frame k.
+    offsets: Vec<usize>,
+    points: Vec<[f64; 3]>,
+}
+
+impl MarkerFrames {
+    /// Builds from per-frame point lists and their times.
+    pub fn from_frames(t: Vec<f64>, frames: Vec<Vec<[f64; 3]>>) -> Self {
+        assert_eq!(t.len(), frames.len(), "one time per marker frame");
+        let mut offsets = Vec::with_capacity(frames.len() + 1);
+        offsets.push(0);
+        let mut points = Vec::new();
+        for frame in frames {
+            points.extend(frame);
+            offsets.push(points.len());
+        }
+        MarkerFrames { t, offsets, points }
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+
+    /// True when there are no frames.
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+
+    /// Markers seen in frame `k` (m).
+    pub fn frame(&self, k: usize) -> &[[f64; 3]] {
+        &self.points[self.offsets[k]..self.offsets[k + 1]]
+    }
+
+    /// Time of frame `k` (s).
+    pub fn t(&self, k: usize) -> f64 {
+        self.t[k]
+    }
+}
+
+/// One recorded trajectory: the tool drives the package, the markers and the object are the targets.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trajectory {
+    /// Folder name.
+    pub id: String,
+    /// `meta.toml`.
+    pub meta: Meta,
+    /// `tool.csv`.
+    pub tool: ToolTrack,
+    /// `object.csv`.
+    pub object: ObjectTrack,
+    /// `markers.csv`.
+    pub markers: MarkerFrames,
+}
+
+/// Reads the rows of a CSV file with exactly `header`, giving each row's 1-based line and values.
+fn read_rows(path: &Path, header: &[&str]) -> Result<Vec<(usize, Vec<f64>)>, DataError> {
+    let mut reader = csv::ReaderBuilder::new()
+        .flexible(true)
+        .from_path(path)
+        .map_err(|err| csv_error(path, err))?;
+    let found = reader.headers().map_err(|err| csv_error(path, err))?.clone();
+    if found.iter().map(str::trim).ne(header.iter().copied()) {
+        return Err(DataError::Malformed {
+            path: path.to_path_buf(),
+            line: 1,
+            message: format!(
+                "expected the header {:?}, found {:?}",
+                header.join(","),
+                found.iter().collect::<Vec<_>>().join(",")
+            ),
+        });
+    }
+    let mut rows = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|err| csv_error(path, err))?;
+        let line = record.position().map_or(0, |p| p.line() as usize);
+        if record.len() != header.len() {
+            return Err(DataError::Malformed {
+                path: path.to_path_buf(),
+                line,
+                message: format!("expected {} values, found {}", header.len(), record.len()),
+            });
+        }
+        let mut values = Vec::with_capacity(header.len());
+        for (column, cell) in header.iter().zip(record.iter()) {
+            let value: f64 = cell.trim().parse().map_err(|_| DataError::Malformed {
+                path: path.to_path_buf(),
+                line,
+                message: format!("column {column}: expected a number, found {cell:?}"),
+            })?;
+            if !value.is_finite() {
+                return Err(DataError::Malformed {
+                    path: path.to_path_buf(),
+                    line,
+                    message: format!("column {column}: expected a finite number, found {cell:?}"),
+                });
+            }
+            values.push(value);
+        }
+        rows.push((line, values));
+    }
+    Ok(rows)
+}
+
+fn csv_error(path: &Path, err: csv::Error) -> DataError {
+    match err.kind() {
+        csv::ErrorKind::Io(_) => {
+            let message = err.to_string();
+            match err.into_kind() {
+                csv::ErrorKind::Io(source) => DataError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                },
+                _ => invalid(path, message),
+            }
+        }
+        _ => DataError::Malformed {
+            path: path.to_path_buf(),
+            line: err.position().map_or(0, |p| p.line() as usize),
+            message: err.to_string(),
+        },
+    }
+}
+
+/// Checks that there is a row and that times strictly increase, naming the first bad line.
+fn check_increasing(path: &Path, rows: &[(usize, Vec<f64>)]) -> Result<(), DataError> {
+    for pair in rows.windows(2) {
+        if pair[1].1[0] <= pair[0].1[0] {
+            return Err(DataError::Malformed {
+                path: path.to_path_buf(),
+                line: pair[1].0,
+                message: format!(
+                    "time must increase: t = {} follows t = {}",
+                    pair[1].1[0], pair[0].1[0]
+                ),
+            });
+        }
+    }
+    if rows.is_empty() {
+        return Err(invalid(path, "expected at least one data row"));
+    }
+    Ok(())
+}
+
+fn vec3(values: &[f64], start: usize) -> [f64; 3] {
+    [values[start], values[start + 1], values[start + 2]]
+}
+
+fn read_tool(path: &Path) -> Result<ToolTrack, DataError> {
+    let rows = read_rows(path, &TOOL_HEADER)?;
+    check_increasing(path, &rows)?;
+    let mut tool = ToolTrack::default();
+    for (line, v) in &rows {
+        let q = [v[4], v[5], v[6], v[7]];
+        let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if (norm - 1.0).abs() > 1e-3 {
+            return Err(DataError::Malformed {
+                path: path.to_path_buf(),
+                line: *line,
+                message: format!("qx,qy,qz,qw must be a unit quaternion, its norm is {norm}"),
+            });
+        }
+        tool.t.push(v[0]);
+        tool.position.push(vec3(v, 1));
+        tool.orientation.push(q);
+        tool.velocity.push(vec3(v, 8));
+        tool.angular_velocity.push(vec3(v, 11));
+        tool.acceleration.push(vec3(v, 14));
+        tool.angular_acceleration.push(vec3(v, 17));
+    }
+    Ok(tool)
+}
+
+fn read_object(path: &Path) -> Result<ObjectTrack, DataError> {
+    let rows = read_rows(path, &OBJECT_HEADER)?;
+    check_increasing(path, &rows)?;
+    let mut object = ObjectTrack::default();
+    for (_, v) in &rows {
+        object.t.push(v[0]);
+        object.position.push(vec3(v, 1));
+        object.velocity.push(vec3(v, 4));
+        object.acceleration.push(vec3(v, 7));
+    }
+    Ok(object)
+}
+
+/// Reads `markers.csv`, whose `frame` column indexes the frames of `times` (the tool's time base).
+fn read_markers(path: &Path, times: &[f64]) -> Result<MarkerFrames, DataError> {
+    let rows = read_rows(path, &MARKERS_HEADER)?;
+    let mut frames: Vec<Vec<[f64; 3]>> = vec![Vec::new(); times.len()];
+    let mut last_frame = 0usize;
+    for (line, v) in &rows {
+        let malformed = |message: String| DataError::Malformed {
+            path: path.to_path_buf(),
+            line: *line,
+            message,
+        };
+        if v[0] < 0.0 || v[0].fract() != 0.0 {
+            return Err(malformed(format!("frame must be a whole number >= 0, found {}", v[0])));
+        }
+        let frame = v[0] as usize;
+        if frame >= times.len() {
+            return Err(malformed(format!(
+                "frame {frame} is past the last tool frame {}",
+                times.len() - 1
+            )));
+        }
+        if frame < last_frame {
+            return Err(malformed(format!(
+                "frames must not decrease: frame {frame} follows frame {last_frame}"
+            )));
+        }
+        if (v[1] - times[frame]).abs() > TIME_TOLERANCE_S {
+            return Err(malformed(format!(
+                "t = {} does not match frame {frame}'s time {} in tool.csv",
+                v[1], times[frame]
+            )));
+        }
+        last_frame = frame;
+        frames[frame].push(vec3(v, 2));
+    }
+    Ok(MarkerFrames::from_frames(times.to_vec(), frames))
+}
+
+fn read_meta(path: &Path) -> Result<Meta, DataError> {
+    let text = fs::read_to_string(path).map_err(io_error(path))?;
+    let meta: Meta = toml::from_str(&text).map_err(|err| DataError::Malformed {
+        path: path.to_path_buf(),
+        line: err
+            .span()
+            .map(|span| text[..span.start].lines().count().max(1))
+            .unwrap_or(1),
+        message: err.message().to_string(),
+    })?;
+    let positive = [
+        ("package_size_m[0]", meta.package_size_m[0]),
+        ("package_size_m[1]", meta.package_size_m[1]),
+        ("object_diameter_m", meta.object_diameter_m),
+        ("object_total_mass_kg", meta.object_total_mass_kg),
+    ];
+    for (key, value) in positive {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(invalid(path, format!("{key} must be a positive number, found {value}")));
+        }
+    }
+    if meta.initial_marker_positions_m.len() < 3 {
+        return Err(invalid(
+            path,
+            "initial_marker_positions_m must list at least 3 markers to place the package",
+        ));
+    }
+    Ok(meta)
+}
+
+/// Loads and validates one trajectory folder (`tool.csv`, `object.csv`, `markers.csv`, `meta.toml`).
+pub fn load_trajectory(dir: &Path) -> Result<Trajectory, DataError> {
+    if !dir.is_dir() {
+        return Err(invalid(dir, "expected a trajectory folder (tool.csv, object.csv, markers.csv, meta.toml)"));
+    }
+    let meta = read_meta(&dir.join("meta.toml"))?;
+    let tool_path = dir.join("tool.csv");
+    let tool = read_tool(&tool_path)?;
+    let object_path = dir.join("object.csv");
+    let object = read_object(&object_path)?;
+    if object.t.len() != tool.t.len() {
+        return Err(invalid(
+            &object_path,
+            format!(
+                "expected one row per tool.csv frame ({}), found {}",
+                tool.t.len(),
+                object.t.len()
+            ),
+        ));
+    }
+    if let Some(k) = (0..tool.t.len()).find(|&k| (object.t[k] - tool.t[k]).abs() > TIME_TOLERANCE_S) {
+        return Err(invalid(
+            &object_path,
+            format!(
+                "row {} has t = {} but tool.csv has t = {} for that frame",
+                k + 1,
+                object.t[k],
+                tool.t[k]
+            ),
+        ));
+    }
+    let markers = read_markers(&dir.join("markers.csv"), &tool.t)?;
+    Ok(Trajectory {
+        id: meta.id.clone(),
+        meta,
+        tool,
+        object,
+        markers,
+    })
+}
+
+impl Trajectory {
+    /// Writes the four files of this trajectory into `dir` (created if needed), each atomically.
+    pub fn save(&self, dir: &Path) -> Result<(), DataError> {
+        fs::create_dir_all(dir).map_err(io_error(dir))?;
+        let meta_path = dir.join("meta.toml");
+        let meta = toml::to_string(&self.meta).map_err(|err| invalid(&meta_path, err.to_string()))?;
+        write_atomic(&meta_path, meta.as_bytes())?;
+
+        let tool = &self.tool;
+        let mut text = TOOL_HEADER.join(",") + "\n";
+        for k in 0..tool.t.len() {
+            let mut row = vec![tool.t[k]];
+            row.extend(tool.position[k]);
+            row.extend(tool.orientation[k]);
+            row.extend(tool.velocity[k]);
+            row.extend(tool.angular_velocity[k]);
+            row.extend(tool.acceleration[k]);
+            row.extend(tool.angular_acceleration[k]);
+            push_row(&mut text, &row);
+        }
+        write_atomic(&dir.join("tool.csv"), text.as_bytes())?;
+
+        let object = &self.object;
+        let mut text = OBJECT_HEADER.join(",") + "\n";
+        for k in 0..object.t.len() {
+            let mut row = vec![object.t[k]];
+            row.extend(object.position[k]);
+            row.extend(object.velocity[k]);
+            row.extend(object.acceleration[k]);
+            push_row(&mut text, &row);
+        }
+        write_atomic(&dir.join("object.csv"), text.as_bytes())?;
+
+        let mut text = MARKERS_HEADER.join(",") + "\n";
+        for k in 0..self.markers.len() {
+            for point in self.markers.frame(k) {
+                text.push_str(&format!("{k},"));
+                push_row(&mut text, &[self.markers.t(k), point[0], point[1], point[2]]);
+            }
+        }
+        write_atomic(&dir.join("markers.csv"), text.as_bytes())
+    }
+}
+
+/// Appends one CSV row with 6 decimals (micrometres, microseconds), as the shipped data.
+fn push_row(text: &mut String, values: &[f64]) {
+    let cells: Vec<String> = values.iter().map(|v| format!("{v:.6}")).collect();
+    text.push_str(&cells.join(","));
+    text.push('\n');
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder and a rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let mut file = tempfile::NamedTempFile::new_in(dir).map_err(io_error(path))?;
+    file.write_all(bytes).map_err(io_error(path))?;
+    file.persist(path).map_err(|err| DataError::Io {
+        path: path.to_path_buf(),
+        source: err.error,
+    })?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shipped() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real")
+    }
+
+    #[test]
+    fn shipped_dataset_has_the_papers_split() {
+        let dataset = Dataset::open(&shipped()).unwrap();
+        assert_eq!(dataset.entries.len(), 18);
+        let mut test = dataset.ids(Some(Split::Test));
+        test.sort();
+        assert_eq!(test, ["HHHMM", "HHLMM", "HHMMM"]);
+        assert_eq!(dataset.ids(Some(Split::Train)).len(), 15);
+    }
+
+    #[test]
+    fn loads_a_trajectory_consistently_with_its_manifest() {
+        let dataset = Dataset::open(&shipped()).unwrap();
+        let traj = dataset.load("HHLHL").unwrap();
+        let entry = dataset.entries.iter().find(|e| e.id == "HHLHL").unwrap();
+        assert_eq!(traj.tool.t.len(), entry.frames);
+        assert_eq!(traj.markers.len(), entry.frames);
+        assert!((traj.tool.t.last().unwrap() - entry.duration_s).abs() < 1e-3);
+        let counts: Vec<usize> = (0..traj.markers.len()).map(|k| traj.markers.frame(k).len()).collect();
+        assert_eq!(counts.iter().min().copied(), entry.markers_per_frame_min);
+        assert_eq!(counts.iter().max().copied(), entry.markers_per_frame_max);
+        assert_eq!(traj.meta.initial_marker_positions_m.len(), 37);
+    }
+
+    #[test]
+    fn save_then_load_round_trips() {
+        let dataset = Dataset::open(&shipped()).unwrap();
+        let traj = dataset.load("HHLHL").unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("HHLHL");
+        traj.save(&out).unwrap();
+        let again = load_trajectory(&out).unwrap();
+        assert_eq!(again, traj);
+    }
+
+    fn broken_copy(file: &str, edit: impl Fn(&str) -> String) -> (tempfile::TempDir, PathBuf) {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("T");
+        fs::create_dir(&out).unwrap();
+        for name in ["tool.csv", "object.csv", "markers.csv", "meta.toml"] {
+            let text = fs::read_to_string(shipped().join("HHLHL").join(name)).unwrap();
+            let text = if name == file { edit(&text) } else { text };
+            fs::write(out.join(name), text).unwrap();
+        }
+        (dir, out)
+    }
+
+    fn replace_line(text: &str, line: usize, new: &str) -> String {
+        let mut lines: Vec<&str> = text.lines().collect();
+        lines[line - 1] = new;
+        lines.join("\n") + "\n"
+    }
+
+    #[test]
+    fn a_non_numeric_cell_names_file_line_and_column() {
+        let (_dir, out) = broken_copy("object.csv", |t| {
+            replace_line(t, 5, "0.016666,abc,0,0,0,0,0,0,0,0")
+        });
+        let message = load_trajectory(&out).unwrap_err().to_string();
+        assert!(message.contains("object.csv:5:"), "{message}");
+        assert!(message.contains("column px"), "{message}");
+    }
+
+    #[test]
+    fn a_short_row_is_reported() {
+        let (_dir, out) = broken_copy("tool.csv", |t| replace_line(t, 3, "0.1,1,2"));
+        let message = load_trajectory(&out).unwrap_err().to_string();
+        assert!(message.contains("tool.csv:3:") && message.contains("expected 20 values"), "{message}");
+    }
+
+    #[test]
+    fn time_going_backwards_is_reported() {
+        let (_dir, out) = broken_copy("object.csv", |t| {
+            let fields: Vec<String> = t.lines().nth(3).unwrap().split(',').map(String::from).collect();
+            let row = format!("0.000001,{}", fields[1..].join(","));
+            replace_line(t, 4, &row)
+        });
+        let message = load_trajectory(&out).unwrap_err().to_string();
+        assert!(message.contains("object.csv:4:") && message.contains("time must increase"), "{message}");
+    }
+
+    #[test]
+    fn a_missing_file_is_named() {
+        let (_dir, out) = broken_copy("markers.csv", |t| t.to_string());
+        fs::remove_file(out.join("markers.csv")).unwrap();
+        let message = load_trajectory(&out).unwrap_err().to_string();
+        assert!(message.contains("markers.csv"), "{message}");
+    }
+
+    #[test]
+    fn an_unknown_meta_key_is_rejected_with_its_line() {
+        let (_dir, out) = broken_copy("meta.toml", |t| format!("{t}\nbogus_key = 1\n"));
+        let message = load_trajectory(&out).unwrap_err().to_string();
+        assert!(message.contains("meta.toml") && message.contains("bogus_key"), "{message}");
+    }
+}

@@ -1,0 +1,52 @@
+//! `rlpkg`: learn to move deformable packages with a suction gripper.
+//!
+//! Each subcommand lives in its own module under `cmd/`; this file only parses and dispatches.
+
+mod cmd;
+mod error;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "rlpkg", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train a policy with PPO from a TOML config (or resume a run).
+    Train(cmd::train::TrainArgs),
+    /// Evaluate a trained policy (run folder or ONNX file), or calibrated simulator parameters.
+    Eval(cmd::eval::EvalArgs),
+    /// Export a run's policy as an ONNX graph (normaliser included).
+    Export(cmd::export::ExportArgs),
+    /// Replay a recorded tool trajectory in the simulator; write CSVs and pictures.
+    Simulate(cmd::simulate::SimulateArgs),
+    /// Fit simulator parameters to recorded trajectories with Bayesian optimisation.
+    Calibrate(cmd::calibrate::CalibrateArgs),
+    /// Import and clean motion-capture data.
+    #[command(subcommand)]
+    Data(cmd::data::DataCommand),
+    /// Benchmarks that print throughput figures.
+    #[command(subcommand)]
+    Bench(cmd::bench::BenchCommand),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Train(args) => cmd::train::run(args),
+        Command::Eval(args) => cmd::eval::run(args),
+        Command::Export(args) => cmd::export::run(args),
+        Command::Simulate(args) => cmd::simulate::run(args),
+        Command::Calibrate(args) => cmd::calibrate::run(args),
+        Command::Data(command) => cmd::data::run(command),
+        Command::Bench(command) => cmd::bench::run(command),
+    };
+    if let Err(err) = result {
+        eprintln!("error: {err:#}");
+        std::process::exit(error::exit_code(&err));
+    }
+}
