@@ -62,6 +62,11 @@ fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> DataError + '_ {
     }
 }
 
+/// 1-based line number of byte offset `at` in `text`.
+fn line_of(text: &str, at: usize) -> usize {
+    text[..at].matches('\n').count() + 1
+}
+
 fn invalid(path: &Path, message: impl Into<String>) -> DataError {
     DataError::Invalid {
         path: path.to_path_buf(),
@@ -147,7 +152,7 @@ impl Dataset {
         let manifest: Manifest = toml::from_str(&text).map_err(|err| {
             let line = err
                 .span()
-                .map(|span| text[..span.start].lines().count().max(1))
+                .map(|span| line_of(&text, span.start))
                 .unwrap_or(1);
             DataError::Malformed {
                 path: path.clone(),
@@ -495,7 +500,7 @@ fn read_meta(path: &Path) -> Result<Meta, DataError> {
         path: path.to_path_buf(),
         line: err
             .span()
-            .map(|span| text[..span.start].lines().count().max(1))
+            .map(|span| line_of(&text, span.start))
             .unwrap_or(1),
         message: err.message().to_string(),
     })?;
@@ -726,7 +731,10 @@ mod tests {
     #[test]
     fn an_unknown_meta_key_is_rejected_with_its_line() {
         let (_dir, out) = broken_copy("meta.toml", |t| format!("{t}\nbogus_key = 1\n"));
+        let original = fs::read_to_string(shipped().join("HHLHL/meta.toml")).unwrap();
+        let bogus_line = original.lines().count() + 2;
         let message = load_trajectory(&out).unwrap_err().to_string();
-        assert!(message.contains("meta.toml") && message.contains("bogus_key"), "{message}");
+        assert!(message.contains(&format!("meta.toml:{bogus_line}:")), "{message}");
+        assert!(message.contains("bogus_key"), "{message}");
     }
 }

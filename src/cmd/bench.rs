@@ -1,10 +1,100 @@
-//! `rlpkg bench ...` (being written).
+//! `rlpkg bench ...`: benchmarks that print throughput figures.
 
-use clap::Subcommand;
+use std::io::Write;
 
+use clap::{Args, Subcommand};
+
+use crate::error::input_error;
+
+/// The benchmarks.
 #[derive(Subcommand)]
-pub enum BenchCommand {}
+pub enum BenchCommand {
+    /// Simulator throughput: particle-substeps/s, real-time factor and peak memory per grid and batch size.
+    Sim(SimBenchArgs),
+    /// PPO update throughput (samples/s per burn backend) and environment steps/s.
+    Ppo(crate::cmd::train::PpoBenchArgs),
+}
 
+/// Arguments of `rlpkg bench sim`.
+#[derive(Args)]
+pub struct SimBenchArgs {
+    /// Package grids per layer, comma-separated ROWSxCOLS (Table 2 sizes by default).
+    #[arg(long, default_value = "11x13,16x19,21x25,26x31")]
+    grid: String,
+    /// Batch sizes, comma-separated.
+    #[arg(long, default_value = "1,64,1024")]
+    envs: String,
+    /// Wall-clock seconds per measurement.
+    #[arg(long, default_value_t = 3.0)]
+    seconds: f64,
+    /// Scene preset (`reference` or `physical`) or a path to a scene TOML.
+    #[arg(long, default_value = "reference")]
+    scene: String,
+    /// Print the results as JSON on stdout (the table then goes to stderr).
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_list<T>(
+    option: &str,
+    text: &str,
+    parse: impl Fn(&str) -> Option<T>,
+) -> anyhow::Result<Vec<T>> {
+    text.split(',')
+        .map(|item| {
+            parse(item.trim())
+                .ok_or_else(|| input_error(format!("--{option}: cannot read `{item}`")))
+        })
+        .collect()
+}
+
+fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
+    let grids = parse_list("grid", &args.grid, |s| {
+        let (r, c) = s.split_once('x')?;
+        Some([r.parse::<usize>().ok()?, c.parse::<usize>().ok()?])
+    })?;
+    let envs = parse_list("envs", &args.envs, |s| {
+        s.parse::<usize>().ok().filter(|&n| n > 0)
+    })?;
+    if !(args.seconds.is_finite() && args.seconds >= 0.0) {
+        return Err(input_error(format!(
+            "--seconds {}: expected a non-negative number",
+            args.seconds
+        )));
+    }
+    let scene = match args.scene.as_str() {
+        "reference" | "physical" => rlpkg_sim::SceneConfig::preset(&args.scene),
+        path => rlpkg_sim::SceneConfig::load(std::path::Path::new(path)),
+    }
+    .map_err(input_error)?;
+    let mut rows = Vec::new();
+    for grid in &grids {
+        for &n in &envs {
+            let row = rlpkg_sim::bench::run(&scene, *grid, n, args.seconds).map_err(input_error)?;
+            eprintln!(
+                "grid {}x{} envs {n}: {:.2} M particle-substeps/s",
+                grid[0],
+                grid[1],
+                row.particle_substeps_per_s / 1e6
+            );
+            rows.push(row);
+        }
+    }
+    let table = rlpkg_sim::bench::format_table(&rows);
+    let mut stdout = std::io::stdout().lock();
+    if args.json {
+        eprint!("{table}");
+        writeln!(stdout, "{}", serde_json::to_string_pretty(&rows)?)?;
+    } else {
+        write!(stdout, "{table}")?;
+    }
+    Ok(())
+}
+
+/// Runs a benchmark subcommand.
 pub fn run(command: BenchCommand) -> anyhow::Result<()> {
-    match command {}
+    match command {
+        BenchCommand::Sim(args) => run_sim(args),
+        BenchCommand::Ppo(args) => crate::cmd::train::run_bench(args),
+    }
 }

@@ -1,10 +1,320 @@
-//! `rlpkg calibrate` (being written).
+//! `rlpkg calibrate <config.toml>`: fits simulator parameters to recorded trajectories with batched
+//! Gaussian-process Bayesian optimisation (crate `rlpkg-calib`).
+//!
+//! Every batch of candidates is simulated on every training trajectory in one batched rollout.
+//! Rerunning with the same output folder resumes from its `evaluations.csv`; `--fresh` starts over.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
 
 use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use rlpkg_calib::config::CalibrateConfig;
+use rlpkg_calib::driver::{self, CalibratedParams, Plan};
+use rlpkg_calib::objective::{load_scene, Observer, SimObjective};
+use rlpkg_mocap::{Dataset, Split};
+use rlpkg_sim::SceneConfig;
 
-#[derive(Args)]
-pub struct CalibrateArgs {}
+use crate::error::input_error;
 
-pub fn run(_args: CalibrateArgs) -> anyhow::Result<()> {
-    anyhow::bail!("rlpkg calibrate is not available yet")
+/// Progress-bar ticks per batch.
+const TICKS_PER_BATCH: u64 = 1000;
+
+/// Arguments of `rlpkg calibrate`.
+#[derive(Args, Debug)]
+pub struct CalibrateArgs {
+    /// Calibration config (TOML), e.g. configs/calibrate.toml.
+    pub config: PathBuf,
+    /// Output folder [default: the config's `out_dir`].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Batches after the initial design [default: the config's `optimiser.iterations`].
+    #[arg(long, value_name = "N")]
+    pub iterations: Option<usize>,
+    /// Fit only these trajectory ids, comma-separated [default: the config's list or the train split].
+    #[arg(long, value_delimiter = ',', value_name = "IDS")]
+    pub trajectories: Vec<String>,
+    /// Compare only the first S seconds of each trajectory [default: the config's `sim.max_seconds`].
+    #[arg(long, value_name = "S")]
+    pub max_seconds: Option<f64>,
+    /// Start over: delete the output folder's previous evaluations instead of resuming.
+    #[arg(long)]
+    pub fresh: bool,
+    /// Also write the calibrated scene here (e.g. configs/calibrated.toml).
+    #[arg(long, value_name = "FILE")]
+    pub write_params: Option<PathBuf>,
+}
+
+/// Runs `rlpkg calibrate`.
+pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
+    let mut config = CalibrateConfig::load(&args.config).map_err(input_error)?;
+    apply_overrides(&mut config, &args)?;
+    let dataset = Dataset::open(&config.data).map_err(input_error)?;
+    let ids = match &config.trajectories {
+        Some(ids) => ids.clone(),
+        None => dataset.ids(Some(Split::Train)),
+    };
+    if ids.is_empty() {
+        return Err(input_error(format!(
+            "{}: no trajectory to fit (the manifest has no train split)",
+            config.data.display()
+        )));
+    }
+    let trajectories = ids
+        .iter()
+        .map(|id| dataset.load(id).map_err(input_error))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let scene = load_scene(&config.sim.preset, Some(config.sim.between), config.sim.dt)
+        .map_err(|e| input_error(format!("{} (sim.preset of {})", e, args.config.display())))?;
+    let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
+    let space = config.space();
+
+    let planned = {
+        let plan = make_plan(&config, &space, Vec::new());
+        plan.planned_batches()
+    };
+    let bar = ProgressBar::new(planned as u64 * TICKS_PER_BATCH).with_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] batch {msg} (eta {eta})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let batch_base = Arc::new(AtomicU64::new(0));
+    let objective = SimObjective::new(
+        &scene,
+        names.clone(),
+        &trajectories,
+        config.loss,
+        config.sim.max_seconds,
+    )
+    .map_err(input_error)?;
+    let seed = objective.base_values();
+    let inside = space
+        .specs()
+        .iter()
+        .zip(&seed)
+        .all(|(s, v)| (s.lower..=s.upper).contains(v));
+    // The preset's values go first when they lie inside the bounds: a known reference point.
+    let seed_points = if inside { vec![seed] } else { Vec::new() };
+    let plan = make_plan(&config, &space, seed_points);
+    let mut objective = objective.with_observer(Box::new(BarObserver {
+        bar: bar.clone(),
+        batch_base: batch_base.clone(),
+    }));
+
+    let out_dir = &config.out_dir;
+    if args.fresh {
+        for file in [
+            "evaluations.csv",
+            "progress.csv",
+            "best.toml",
+            "calibrated.toml",
+        ] {
+            let path = out_dir.join(file);
+            if path.exists() {
+                std::fs::remove_file(&path)?;
+            }
+        }
+    }
+    println!(
+        "calibrating {} parameter(s) on {} trajectory(ies) [{}], grid {}x{}, dt {:.3e} s, {} batch(es) of {}; output in {}",
+        names.len(),
+        ids.len(),
+        ids.join(","),
+        scene.package.grid[0],
+        scene.package.grid[1],
+        scene.dt(),
+        planned,
+        config.optimiser.batch_size,
+        out_dir.display()
+    );
+    let started = Instant::now();
+    let best = driver::run(&plan, &mut objective, |report| {
+        batch_base.store(
+            (report.batch as u64 + 1) * TICKS_PER_BATCH,
+            Ordering::Relaxed,
+        );
+        bar.set_position((report.batch as u64 + 1) * TICKS_PER_BATCH);
+        bar.set_message(format!(
+            "{}/{}, best loss {:.5}",
+            report.batch + 1,
+            report.planned_batches,
+            report.best_loss
+        ));
+        bar.println(format!(
+            "batch {:>3}/{}: batch best {:.6}, best {:.6} ({} evaluations)",
+            report.batch + 1,
+            report.planned_batches,
+            report.batch_best_loss,
+            report.best_loss,
+            report.evaluations
+        ));
+    })
+    .map_err(|e| match e {
+        driver::DriverError::Log(_) => input_error(e),
+        other => anyhow::Error::new(other),
+    })?;
+    bar.finish_and_clear();
+    let wall = started.elapsed().as_secs_f64();
+
+    let calibrated = objective.calibrated_scene(&best)?;
+    let text = scene_text(&calibrated, &best, &ids, config.sim.max_seconds, &args.config)?;
+    let calibrated_path = out_dir.join("calibrated.toml");
+    driver::write_atomically(&calibrated_path, text.as_bytes())?;
+    if let Some(path) = &args.write_params {
+        driver::write_atomically(path, text.as_bytes())?;
+    }
+    print_summary(
+        &best,
+        wall,
+        out_dir,
+        &calibrated_path,
+        args.write_params.as_deref(),
+    );
+    Ok(())
+}
+
+/// Applies the command-line overrides to the configuration, with range checks.
+fn apply_overrides(config: &mut CalibrateConfig, args: &CalibrateArgs) -> anyhow::Result<()> {
+    if let Some(out) = &args.out {
+        config.out_dir = out.clone();
+    }
+    if let Some(n) = args.iterations {
+        if !(1..=100_000).contains(&n) {
+            return Err(input_error(format!(
+                "--iterations {n}: expected an integer in [1, 100000]"
+            )));
+        }
+        config.optimiser.iterations = n;
+    }
+    if !args.trajectories.is_empty() {
+        config.trajectories = Some(args.trajectories.clone());
+    }
+    if let Some(s) = args.max_seconds {
+        if !(s > 0.0 && s.is_finite()) {
+            return Err(input_error(format!(
+                "--max-seconds {s}: expected a duration > 0 s"
+            )));
+        }
+        config.sim.max_seconds = Some(s);
+    }
+    Ok(())
+}
+
+fn make_plan(
+    config: &CalibrateConfig,
+    space: &rlpkg_calib::space::ParamSpace,
+    seed_points: Vec<Vec<f64>>,
+) -> Plan {
+    Plan {
+        space: space.clone(),
+        settings: config.bo_settings(),
+        seed_points,
+        iterations: config.optimiser.iterations,
+        out_dir: config.out_dir.clone(),
+    }
+}
+
+/// Moves the progress bar within a batch as the rollout advances.
+struct BarObserver {
+    bar: ProgressBar,
+    batch_base: Arc<AtomicU64>,
+}
+
+impl Observer for BarObserver {
+    fn progress(&mut self, done: u64, total: u64) {
+        let within = done * TICKS_PER_BATCH / total.max(1);
+        self.bar.set_position(
+            self.batch_base.load(Ordering::Relaxed) + within.min(TICKS_PER_BATCH - 1),
+        );
+    }
+}
+
+/// The calibrated scene as TOML, with a header saying how it was obtained.
+fn scene_text(
+    scene: &SceneConfig,
+    best: &CalibratedParams,
+    ids: &[String],
+    max_seconds: Option<f64>,
+    config: &Path,
+) -> anyhow::Result<String> {
+    let body = toml::to_string_pretty(scene)?;
+    let span = max_seconds.map_or(String::new(), |s| format!(" (first {s} s of each)"));
+    Ok(format!(
+        "# Calibrated by `rlpkg calibrate {}` on {} trajectory(ies){span}: {}.\n\
+         # Training loss {:.6} (mean per-frame Chamfer distance {:.5} m, object MSE {:.3e} m^2) after {} evaluations.\n\
+         # Calibrated: {}. Use with `rlpkg eval --params <this file>` or `rlpkg simulate --params <this file>`.\n\n{}",
+        config.display(),
+        ids.len(),
+        ids.join(", "),
+        best.fit.loss,
+        best.fit.chamfer_m,
+        best.fit.object_mse_m2,
+        best.fit.evaluations,
+        best.params.keys().cloned().collect::<Vec<_>>().join(", "),
+        body
+    ))
+}
+
+fn print_summary(
+    best: &CalibratedParams,
+    wall_s: f64,
+    out_dir: &Path,
+    calibrated: &Path,
+    extra: Option<&Path>,
+) {
+    println!(
+        "best parameters after {} evaluations:",
+        best.fit.evaluations
+    );
+    for (name, value) in &best.params {
+        println!("  {name:<9} = {value:.6e}");
+    }
+    println!(
+        "training loss {:.6}: mean Chamfer distance {:.5} m, object MSE {:.3e} m^2",
+        best.fit.loss, best.fit.chamfer_m, best.fit.object_mse_m2
+    );
+    println!("wall time {wall_s:.1} s");
+    println!(
+        "wrote {}/{{evaluations.csv, progress.csv, best.toml}} and {}",
+        out_dir.display(),
+        calibrated.display()
+    );
+    if let Some(path) = extra {
+        println!("wrote {}", path.display());
+    }
+}
+
+// TEMPORARY (removed before hand-over): compiles eval_params.rs until the lead declares it in mod.rs.
+#[path = "eval_params.rs"]
+pub mod eval_params_tmp;
+
+// TEMPORARY (removed before hand-over): runs eval_params until `rlpkg eval` dispatches to it.
+#[cfg(test)]
+mod eval_params_smoke {
+    #[test]
+    fn eval_params_runs_on_the_test_split() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = crate::cmd::eval::EvalArgs {
+            run: None,
+            policy: None,
+            episodes: 1,
+            seed: 0,
+            params: Some("configs/calibrated.toml".into()),
+            split: "test".into(),
+            data: "data/deformable-sim-real".into(),
+            sweep_grid: false,
+            perturb: vec![],
+            out: Some(dir.path().to_path_buf()),
+            json: false,
+        };
+        super::eval_params_tmp::run(&args).unwrap();
+        let keep = std::path::Path::new("/tmp/eval-smoke");
+        let _ = std::fs::create_dir_all(keep);
+        for e in std::fs::read_dir(dir.path()).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), keep.join(e.file_name())).unwrap();
+        }
+    }
 }

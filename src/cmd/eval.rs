@@ -4,6 +4,10 @@
 use std::path::PathBuf;
 
 use clap::Args;
+use rlpkg_agents::evaluate_run;
+use serde::Serialize;
+
+use crate::error::input_error;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -41,6 +45,69 @@ pub struct EvalArgs {
     pub json: bool,
 }
 
-pub fn run(_args: EvalArgs) -> anyhow::Result<()> {
-    anyhow::bail!("rlpkg eval is not available yet")
+pub fn run(args: EvalArgs) -> anyhow::Result<()> {
+    if args.params.is_some() {
+        return Err(input_error(
+            "--params: calibration evaluation is not available in this build",
+        ));
+    }
+    if let Some(policy) = &args.policy {
+        let summary = crate::cmd::export::eval_onnx_policy(policy, args.episodes, args.seed)?;
+        return print_policy_summary(&summary, args.json, &|s| {
+            format!(
+                "{} on {}: {} episodes, return {:.2} +- {:.2} (mean length {:.1})",
+                s.policy.display(),
+                s.env_id,
+                s.episodes,
+                s.mean_return,
+                s.std_return,
+                s.mean_length
+            )
+        });
+    }
+    let Some(run) = &args.run else {
+        return Err(input_error(
+            "give a run folder (runs/<name>), --policy <file.onnx> or --params <file.toml>",
+        ));
+    };
+    if args.episodes == 0 {
+        return Err(input_error("--episodes: expected at least 1"));
+    }
+    let summary = evaluate_run(run, args.episodes, args.seed).map_err(|e| {
+        if e.is_input_error() {
+            input_error(e)
+        } else {
+            e.into()
+        }
+    })?;
+    print_policy_summary(&summary, args.json, &|s| {
+        format!(
+            "{} ({}, update {}, {} steps): {} deterministic episodes, return {:.2} +- {:.2} \
+             [min {:.2}, max {:.2}], mean length {:.1}",
+            run.display(),
+            s.env_id,
+            s.update,
+            s.global_step,
+            s.episodes,
+            s.mean_return,
+            s.std_return,
+            s.min_return,
+            s.max_return,
+            s.mean_length
+        )
+    })
+}
+
+/// Prints `summary` as pretty JSON (`--json`) or as one line of text.
+fn print_policy_summary<T: Serialize>(
+    summary: &T,
+    json: bool,
+    text: &dyn Fn(&T) -> String,
+) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(summary)?);
+    } else {
+        println!("{}", text(summary));
+    }
+    Ok(())
 }

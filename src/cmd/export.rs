@@ -1,10 +1,440 @@
-//! `rlpkg export` (being written).
+//! `rlpkg export`: writes a run's policy as an ONNX graph (normaliser and action transform
+//! included), then loads the written file in tract and checks it against the run's policy.
+//!
+//! Also home of [`eval_onnx_policy`], which `rlpkg eval --policy` calls to run an exported file in
+//! its environment.
 
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
 use clap::Args;
+use rlpkg_agents::export::check::{check_path, CheckData};
+use rlpkg_agents::export::runtime::{
+    compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes,
+    Latency,
+};
+use rlpkg_agents::export::{write_onnx, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
+use rlpkg_agents::runners::TrainedPolicy;
+use rlpkg_agents::{AgentError, Trainer};
+use serde::Serialize;
+
+use crate::error::input_error;
 
 #[derive(Args)]
-pub struct ExportArgs {}
+#[command(
+    after_help = "Examples:\n  rlpkg export runs/cartpole\n  rlpkg export runs/pendulum \
+                        --out pendulum.onnx --with-value --check-data --latency 2000"
+)]
+pub struct ExportArgs {
+    /// Run folder written by `rlpkg train` (runs/<name>).
+    pub run: PathBuf,
+    /// Where to write the ONNX file [default: <run>/policy.onnx].
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Also export the critic, as output `value`.
+    #[arg(long)]
+    pub with_value: bool,
+    /// Number of random observations on which the written file is checked (tract vs the run's
+    /// policy, max abs difference <= 1e-5).
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub verify: u64,
+    /// Save those observations and the expected outputs next to the model
+    /// (`policy.check.json`), for `tests/onnx_check.py` or another runtime.
+    #[arg(long)]
+    pub check_data: bool,
+    /// Time this many single-observation inferences of the written file in tract.
+    #[arg(long)]
+    pub latency: Option<usize>,
+    /// Print a JSON summary on standard output.
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: ExportArgs) -> anyhow::Result<()> {
-    anyhow::bail!("rlpkg export is not available yet")
+/// What `rlpkg export` did, printed as text or JSON.
+#[derive(Debug, Serialize)]
+pub struct ExportSummary {
+    /// The ONNX file written.
+    pub model: PathBuf,
+    /// Its size in bytes.
+    pub bytes: u64,
+    /// Environment the policy acts in.
+    pub env_id: String,
+    /// Observations the written file was checked on.
+    pub verified_rows: usize,
+    /// Largest absolute difference between tract on the file and the reference policy.
+    pub max_abs_diff: f32,
+    /// Check data written next to the model, if asked.
+    pub check_data: Option<PathBuf>,
+    /// tract single-observation latency, if asked.
+    pub latency_us: Option<LatencySummary>,
+    /// Comparison with the trainer's burn policy (when exported from a run folder).
+    pub burn: Option<BurnComparison>,
+}
+
+/// Latency figures in microseconds.
+#[derive(Debug, Serialize)]
+pub struct LatencySummary {
+    /// Timed runs.
+    pub runs: usize,
+    /// Median.
+    pub median: f64,
+    /// 90th percentile.
+    pub p90: f64,
+}
+
+impl From<Latency> for LatencySummary {
+    fn from(l: Latency) -> Self {
+        Self {
+            runs: l.runs,
+            median: l.median_us,
+            p90: l.p90_us,
+        }
+    }
+}
+
+/// Options of [`export_policy`] beyond the graph and the output path.
+#[derive(Debug, Clone)]
+pub struct ExportOptions {
+    /// Observations to verify the written file on.
+    pub verify_rows: usize,
+    /// Write `<model>.check.json` beside the model.
+    pub check_data: bool,
+    /// Single-observation latency runs, if any.
+    pub latency_runs: Option<usize>,
+}
+
+pub fn run(args: ExportArgs) -> anyhow::Result<()> {
+    let run = &args.run;
+    if !run.is_dir() {
+        return Err(input_error(format!(
+            "{}: not a run folder (expected a folder written by `rlpkg train`, e.g. runs/<name>)",
+            run.display()
+        )));
+    }
+    let trainer = Trainer::resume(run).map_err(agent_error)?;
+    let burn = TrainedPolicy::from_trainer(&trainer);
+    let mut graph = burn.policy_graph();
+    if !args.with_value {
+        graph.critic = None;
+    }
+    let out = args.out.clone().unwrap_or_else(|| run.join("policy.onnx"));
+    let options = ExportOptions {
+        verify_rows: args.verify as usize,
+        check_data: args.check_data,
+        latency_runs: args.latency,
+    };
+    let mut summary = export_policy(&graph, &out, &options)?;
+    summary.burn = Some(compare_with_burn(&burn, &graph, &out, options.verify_rows)?);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        print_summary(&summary);
+    }
+    Ok(())
+}
+
+/// Trainer errors in what the user gave (run folder, config) exit with 2.
+fn agent_error(err: AgentError) -> anyhow::Error {
+    if err.is_input_error() {
+        input_error(err)
+    } else {
+        err.into()
+    }
+}
+
+/// How the written file compares with the trainer's burn policy.
+#[derive(Debug, Serialize)]
+pub struct BurnComparison {
+    /// Random observations compared.
+    pub random_rows: usize,
+    /// Max abs action difference, burn vs tract, on them.
+    pub random_max_abs_diff: f32,
+    /// Observations visited by the burn policy in deterministic episodes.
+    pub visited_rows: usize,
+    /// Max abs action difference, burn vs tract, on them.
+    pub visited_max_abs_diff: f32,
+}
+
+/// Compares the actions of the burn policy and of tract on the file at `out`, on `rows` random
+/// observations and up to `rows` observations the burn policy visits (100 episodes, seed 0); an
+/// error when either difference exceeds [`TOLERANCE`].
+fn compare_with_burn(
+    burn: &TrainedPolicy,
+    graph: &PolicyGraph,
+    out: &Path,
+    rows: usize,
+) -> anyhow::Result<BurnComparison> {
+    let onnx = OnnxPolicy::load(out).map_err(wrap_export_error)?;
+    let action_dim = graph.action_dim();
+    let diff = |obs: &[f32], n: usize| -> anyhow::Result<f32> {
+        let (diff, row) = max_abs_diff(&burn.act(obs, n), &onnx.act(obs, n)?, action_dim);
+        if !(diff <= TOLERANCE) {
+            anyhow::bail!(
+                "{}: actions differ from the trainer's burn policy by {diff:e} (row {row}, \
+                 tolerance {TOLERANCE:e})",
+                out.display()
+            );
+        }
+        Ok(diff)
+    };
+    let random = random_observations(graph, rows, 0);
+    let random_max_abs_diff = diff(&random, rows)?;
+    let visited = run_episodes(&graph.meta.env_id, 100, 0, |obs, n| {
+        Ok::<_, ExportError>(burn.act(obs, n))
+    })?
+    .visited_obs;
+    let obs_dim = graph.obs_dim();
+    let visited_rows = (visited.len() / obs_dim).min(rows);
+    let visited_max_abs_diff = diff(&visited[..visited_rows * obs_dim], visited_rows)?;
+    Ok(BurnComparison {
+        random_rows: rows,
+        random_max_abs_diff,
+        visited_rows,
+        visited_max_abs_diff,
+    })
+}
+
+/// Writes `graph` to `out` atomically, reloads the written file in tract and checks it against
+/// [`PolicyGraph::act`] on `verify_rows` random observations (error if the difference exceeds
+/// [`TOLERANCE`]); optionally writes check data and measures latency.
+pub fn export_policy(
+    graph: &PolicyGraph,
+    out: &Path,
+    options: &ExportOptions,
+) -> anyhow::Result<ExportSummary> {
+    check_out_path(out)?;
+    let bytes = write_onnx(graph, out).map_err(wrap_export_error)?;
+    let policy = OnnxPolicy::load(out).map_err(wrap_export_error)?;
+    let rows = options.verify_rows;
+    let obs = random_observations(graph, rows, 0);
+    let agreement = compare_with_reference(graph, &policy, &obs, rows)?;
+    agreement.check(TOLERANCE).with_context(|| {
+        format!(
+            "{}: the written file does not reproduce the policy",
+            out.display()
+        )
+    })?;
+    let check_data = if options.check_data {
+        let path = check_path(out);
+        CheckData::from_reference(graph, &obs, rows, TOLERANCE).write(&path)?;
+        Some(path)
+    } else {
+        None
+    };
+    let latency_us = match options.latency_runs {
+        Some(runs) => Some(measure_latency(&policy, &obs, runs)?.into()),
+        None => None,
+    };
+    Ok(ExportSummary {
+        model: out.to_path_buf(),
+        bytes,
+        env_id: graph.meta.env_id.clone(),
+        verified_rows: rows,
+        max_abs_diff: agreement.max_abs_diff(),
+        check_data,
+        latency_us,
+        burn: None,
+    })
+}
+
+/// The output folder must exist and the path must name a file.
+fn check_out_path(out: &Path) -> anyhow::Result<()> {
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if out.file_name().is_none() || out.is_dir() {
+        return Err(input_error(format!(
+            "--out {}: expected a file path, e.g. policy.onnx",
+            out.display()
+        )));
+    }
+    if !parent.is_dir() {
+        return Err(input_error(format!(
+            "--out {}: folder {} does not exist",
+            out.display(),
+            parent.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Inconsistent graphs are the trainer's fault (exit 1); unreadable or unwritable files are the
+/// user's (exit 2).
+fn wrap_export_error(err: ExportError) -> anyhow::Error {
+    match err {
+        ExportError::Io { .. } | ExportError::NotOnnx { .. } | ExportError::Metadata { .. } => {
+            input_error(err)
+        }
+        other => other.into(),
+    }
+}
+
+fn print_summary(s: &ExportSummary) {
+    println!(
+        "wrote {} ({} bytes) for {}",
+        s.model.display(),
+        s.bytes,
+        s.env_id
+    );
+    println!(
+        "verified in tract on {} random observations: max abs diff {:.3e} (tolerance {TOLERANCE:e})",
+        s.verified_rows, s.max_abs_diff
+    );
+    if let Some(b) = &s.burn {
+        println!(
+            "burn policy vs tract: max abs action diff {:.3e} on {} random and {:.3e} on {} visited \
+             observations",
+            b.random_max_abs_diff, b.random_rows, b.visited_max_abs_diff, b.visited_rows
+        );
+    }
+    if let Some(path) = &s.check_data {
+        println!(
+            "check data: {} (python3 tests/onnx_check.py {})",
+            path.display(),
+            s.model.display()
+        );
+    }
+    if let Some(l) = &s.latency_us {
+        println!(
+            "tract single-observation latency: median {:.1} us, p90 {:.1} us over {} runs",
+            l.median, l.p90, l.runs
+        );
+    }
+}
+
+/// Result of [`eval_onnx_policy`].
+#[derive(Debug, Serialize)]
+pub struct OnnxEvalSummary {
+    /// The ONNX file evaluated.
+    pub policy: PathBuf,
+    /// Environment id read from the file's metadata.
+    pub env_id: String,
+    /// Number of deterministic episodes.
+    pub episodes: usize,
+    /// Seed of the evaluation environments.
+    pub seed: u64,
+    /// Mean undiscounted return.
+    pub mean_return: f64,
+    /// Standard deviation of the returns.
+    pub std_return: f64,
+    /// Mean episode length in steps.
+    pub mean_length: f64,
+}
+
+/// `rlpkg eval --policy policy.onnx`: runs the exported file through tract in `episodes`
+/// deterministic episodes of the environment named in its metadata (`env_id`).
+pub fn eval_onnx_policy(
+    path: &Path,
+    episodes: usize,
+    seed: u64,
+) -> anyhow::Result<OnnxEvalSummary> {
+    if episodes == 0 {
+        return Err(input_error("--episodes: expected at least 1"));
+    }
+    let policy = OnnxPolicy::load(path).map_err(|e| match e {
+        ExportError::Io { .. } | ExportError::NotOnnx { .. } | ExportError::Runtime { .. } => {
+            input_error(e)
+        }
+        other => other.into(),
+    })?;
+    let env_id = policy.metadata().get("env_id").cloned().ok_or_else(|| {
+        input_error(format!(
+            "{}: metadata key `env_id` missing (expected a file written by `rlpkg export`)",
+            path.display()
+        ))
+    })?;
+    let stats = run_episodes(&env_id, episodes, seed, |obs, n| policy.act(obs, n)).map_err(
+        |e| match e {
+            ExportError::Env(_) | ExportError::ObsShape { .. } => {
+                input_error(format!("{}: {e}", path.display()))
+            }
+            other => other.into(),
+        },
+    )?;
+    Ok(OnnxEvalSummary {
+        policy: path.to_path_buf(),
+        env_id,
+        episodes,
+        seed,
+        mean_return: stats.mean_return(),
+        std_return: stats.std_return(),
+        mean_length: stats.lengths.iter().sum::<usize>() as f64 / episodes as f64,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::error::exit_code;
+    use rlpkg_agents::export::random::{cartpole_like, pendulum_like};
+
+    fn options() -> ExportOptions {
+        ExportOptions {
+            verify_rows: 200,
+            check_data: true,
+            latency_runs: Some(20),
+        }
+    }
+
+    #[test]
+    fn export_writes_verifies_and_saves_check_data() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("pendulum.onnx");
+        let summary = export_policy(&pendulum_like(1), &out, &options()).unwrap();
+        assert_eq!(summary.bytes, std::fs::metadata(&out).unwrap().len());
+        assert!(summary.max_abs_diff <= TOLERANCE);
+        assert_eq!(summary.verified_rows, 200);
+        let check = CheckData::read(summary.check_data.as_ref().unwrap()).unwrap();
+        assert_eq!(check.rows, 200);
+        assert_eq!(summary.latency_us.unwrap().runs, 20);
+    }
+
+    #[test]
+    fn bad_output_paths_are_input_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        for out in [
+            dir.path().join("missing/policy.onnx"),
+            dir.path().to_path_buf(),
+        ] {
+            let err = export_policy(&pendulum_like(2), &out, &options()).unwrap_err();
+            assert_eq!(exit_code(&err), 2, "{err:#}");
+            assert!(format!("{err:#}").contains("--out"), "{err:#}");
+        }
+    }
+
+    #[test]
+    fn eval_runs_the_exported_file_like_the_reference() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("cartpole.onnx");
+        let graph = cartpole_like(3);
+        export_policy(&graph, &out, &options()).unwrap();
+        let summary = eval_onnx_policy(&out, 5, 11).unwrap();
+        let reference = run_episodes("CartPole-v1", 5, 11, |obs, n| {
+            Ok::<_, ExportError>(graph.act(obs, n))
+        })
+        .unwrap();
+        assert_eq!(summary.env_id, "CartPole-v1");
+        assert_eq!(summary.mean_return, reference.mean_return());
+        assert!(summary.mean_length >= 1.0);
+    }
+
+    #[test]
+    fn eval_rejects_bad_files_with_exit_code_2() {
+        let dir = tempfile::tempdir().unwrap();
+        let garbage = dir.path().join("garbage.onnx");
+        std::fs::write(&garbage, b"not a model").unwrap();
+        let mut unknown_env = pendulum_like(4);
+        unknown_env.meta.env_id = "MountainCar-v0".into();
+        let unknown = dir.path().join("unknown.onnx");
+        export_policy(&unknown_env, &unknown, &options()).unwrap();
+        for path in [dir.path().join("absent.onnx"), garbage, unknown] {
+            let err = eval_onnx_policy(&path, 2, 0).unwrap_err();
+            assert_eq!(exit_code(&err), 2, "{err:#}");
+            assert!(
+                format!("{err:#}").contains(&*path.to_string_lossy()),
+                "{err:#}"
+            );
+        }
+    }
 }

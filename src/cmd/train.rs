@@ -1,10 +1,209 @@
-//! `rlpkg train` (being written).
+//! `rlpkg train`: PPO on a TOML configuration, or `--resume` of an earlier run; the trained policy
+//! is exported as ONNX (`<run>/policy.onnx`) at the end.
 
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
 use clap::Args;
+use rlpkg_agents::{load_policy_graph, AgentError, TrainConfig, Trainer};
+
+use crate::cmd::export::{export_policy, ExportOptions};
+use crate::error::input_error;
 
 #[derive(Args)]
-pub struct TrainArgs {}
+#[command(
+    after_help = "Examples:\n  rlpkg train configs/cartpole.toml\n  rlpkg train configs/pendulum.toml \
+                        --name pendulum-seed2\n  rlpkg train --resume runs/cartpole"
+)]
+pub struct TrainArgs {
+    /// Training configuration (TOML), e.g. configs/cartpole.toml.
+    #[arg(required_unless_present = "resume", conflicts_with = "resume")]
+    pub config: Option<PathBuf>,
+    /// Continue the run in this folder from its latest checkpoint.
+    #[arg(long, value_name = "RUN_DIR")]
+    pub resume: Option<PathBuf>,
+    /// Run name; the run is written to <OUT_DIR>/<NAME> [default: the config file's stem].
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Folder that holds run folders.
+    #[arg(long, default_value = "runs")]
+    pub out_dir: PathBuf,
+    /// Stop after this many updates in total (continue later with --resume).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub stop_after: Option<u64>,
+    /// Skip the ONNX export at the end.
+    #[arg(long)]
+    pub no_export: bool,
+    /// No progress bar or progress lines.
+    #[arg(long)]
+    pub quiet: bool,
+}
 
-pub fn run(_args: TrainArgs) -> anyhow::Result<()> {
-    anyhow::bail!("rlpkg train is not available yet")
+/// Errors in what the user gave exit with code 2.
+fn wrap(err: AgentError) -> anyhow::Error {
+    if err.is_input_error() {
+        input_error(err)
+    } else {
+        err.into()
+    }
+}
+
+pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    let (mut trainer, run_dir) = match (&args.resume, &args.config) {
+        (Some(run_dir), _) => (Trainer::resume(run_dir).map_err(wrap)?, run_dir.clone()),
+        (None, Some(config_path)) => {
+            let (config, text) = TrainConfig::load(config_path).map_err(|e| match e {
+                AgentError::Io { .. } => input_error(e),
+                other => wrap(other),
+            })?;
+            let name = match &args.name {
+                Some(name) => name.clone(),
+                None => default_name(config_path)?,
+            };
+            let run_dir = args.out_dir.join(name);
+            let trainer = Trainer::new(config, text).map_err(wrap)?;
+            trainer.create_run_dir(&run_dir).map_err(wrap)?;
+            (trainer, run_dir)
+        }
+        (None, None) => {
+            return Err(input_error(
+                "give a configuration file or --resume <RUN_DIR>",
+            ))
+        }
+    };
+    let stop_after = args.stop_after.map(|s| s as usize);
+    let summary = trainer
+        .train(&run_dir, stop_after, !args.quiet)
+        .map_err(wrap)
+        .with_context(|| format!("training {}", run_dir.display()))?;
+    let total = trainer.config().num_updates();
+    println!(
+        "{}: {} / {total} updates, {} environment steps, {:.1} s, mean return of the last episodes {:.2}",
+        run_dir.display(),
+        summary.updates,
+        summary.global_step,
+        summary.wall_seconds,
+        summary.recent_mean_return
+    );
+    if summary.updates == total && !args.no_export {
+        let mut graph = load_policy_graph(&run_dir).map_err(wrap)?;
+        // Like `rlpkg export` without --with-value: the actor (and normaliser) only.
+        graph.critic = None;
+        let out = run_dir.join("policy.onnx");
+        let options = ExportOptions {
+            verify_rows: 1000,
+            check_data: false,
+            latency_runs: None,
+        };
+        let exported = export_policy(&graph, &out, &options)?;
+        println!(
+            "exported {} (max abs difference to the trained policy {:e})",
+            exported.model.display(),
+            exported.max_abs_diff
+        );
+    }
+    Ok(())
+}
+
+/// The config file's stem, e.g. `cartpole` for `configs/cartpole.toml`.
+fn default_name(config_path: &Path) -> anyhow::Result<String> {
+    config_path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .map(str::to_string)
+        .ok_or_else(|| {
+            input_error(format!(
+                "{}: cannot derive a run name; pass --name",
+                config_path.display()
+            ))
+        })
+}
+
+/// Arguments of `rlpkg bench ppo`.
+#[derive(Args)]
+pub struct PpoBenchArgs {
+    /// burn backends to measure: flex, ndarray, or both (comma-separated).
+    #[arg(long, default_value = "flex,ndarray", value_delimiter = ',')]
+    pub backend: Vec<String>,
+    /// Samples per minibatch.
+    #[arg(long, default_value_t = 4096)]
+    pub minibatch: usize,
+    /// Timed minibatches per backend.
+    #[arg(long, default_value_t = 10)]
+    pub minibatches: usize,
+    /// Observation width.
+    #[arg(long, default_value_t = 48)]
+    pub obs_dim: usize,
+    /// Action width.
+    #[arg(long, default_value_t = 6)]
+    pub action_dim: usize,
+    /// Hidden widths of actor and critic (comma-separated).
+    #[arg(long, default_value = "256,256", value_delimiter = ',')]
+    pub hidden: Vec<usize>,
+    /// Lockstep steps of the environment benchmark (0 skips it).
+    #[arg(long, default_value_t = 20000)]
+    pub env_steps: usize,
+    /// Copies in the environment benchmark.
+    #[arg(long, default_value_t = 64)]
+    pub num_envs: usize,
+    /// Print the results as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `rlpkg bench ppo`: PPO update throughput (forward + backward + global clip + Adam) per backend,
+/// and CartPole / Pendulum steps per second.
+pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
+    use rlpkg_agents::bench::{env_throughput, ppo_update_throughput, PpoBenchConfig};
+    if args.minibatch == 0 || args.minibatches == 0 || args.obs_dim == 0 || args.action_dim == 0 {
+        return Err(input_error(
+            "--minibatch, --minibatches, --obs-dim and --action-dim: expected at least 1",
+        ));
+    }
+    if args.hidden.is_empty() || args.hidden.contains(&0) {
+        return Err(input_error(
+            "--hidden: expected widths of at least 1, e.g. 256,256",
+        ));
+    }
+    let mut updates = Vec::new();
+    for name in &args.backend {
+        let backend = rlpkg_agents::Backend::parse(name)
+            .ok_or_else(|| input_error(format!("--backend {name}: expected flex or ndarray")))?;
+        let result = ppo_update_throughput(&PpoBenchConfig {
+            obs_dim: args.obs_dim,
+            action_dim: args.action_dim,
+            hidden: args.hidden.clone(),
+            minibatch: args.minibatch,
+            minibatches: args.minibatches,
+            backend,
+        });
+        eprintln!(
+            "ppo update [{}] {}-{:?}-{} ({} parameters), minibatch {}: {:.0} samples/s ({:.1} ms/minibatch)",
+            result.backend,
+            args.obs_dim,
+            args.hidden,
+            args.action_dim,
+            result.parameters,
+            args.minibatch,
+            result.samples_per_second,
+            result.ms_per_minibatch
+        );
+        updates.push(result);
+    }
+    let mut envs = Vec::new();
+    if args.env_steps > 0 {
+        for id in rlpkg_env::KNOWN_IDS {
+            let result = env_throughput(id, args.num_envs.max(1), args.env_steps)?;
+            eprintln!(
+                "env {} x{}: {:.3e} steps/s",
+                result.env_id, result.num_envs, result.steps_per_second
+            );
+            envs.push(result);
+        }
+    }
+    if args.json {
+        let json = serde_json::json!({ "ppo_update": updates, "env": envs });
+        println!("{}", serde_json::to_string_pretty(&json)?);
+    }
+    Ok(())
 }

@@ -1,0 +1,155 @@
+//! Throughput figures (benchmarks, not tests): PPO update samples/s and environment steps/s.
+
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use crate::algorithms::Ppo;
+use crate::config::{LrSchedule, PpoConfig};
+use crate::export::Activation;
+use crate::modules::ActorCritic;
+use crate::storage::RolloutStorage;
+use crate::{AgentError, Backend};
+
+/// Shape of the PPO update benchmark.
+#[derive(Debug, Clone, Serialize)]
+pub struct PpoBenchConfig {
+    /// Observation width.
+    pub obs_dim: usize,
+    /// Gaussian action width.
+    pub action_dim: usize,
+    /// Hidden widths of actor and critic.
+    pub hidden: Vec<usize>,
+    /// Samples per minibatch.
+    pub minibatch: usize,
+    /// Minibatches timed (after one warm-up minibatch).
+    pub minibatches: usize,
+    /// burn backend.
+    #[serde(skip)]
+    pub backend: Backend,
+}
+
+/// Measured PPO update throughput.
+#[derive(Debug, Clone, Serialize)]
+pub struct PpoBenchResult {
+    /// Backend name.
+    pub backend: String,
+    /// The benchmark's shape.
+    pub config: PpoBenchConfig,
+    /// Parameters of actor + critic.
+    pub parameters: usize,
+    /// Samples per second through forward + backward + global clip + Adam.
+    pub samples_per_second: f64,
+    /// Milliseconds per minibatch.
+    pub ms_per_minibatch: f64,
+}
+
+/// Times PPO minibatch updates (forward, backward, global grad clip, Adam) on random data.
+pub fn ppo_update_throughput(config: &PpoBenchConfig) -> PpoBenchResult {
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let device = config.backend.device().autodiff();
+    let model = ActorCritic::new(
+        config.obs_dim,
+        config.action_dim,
+        &config.hidden,
+        &config.hidden,
+        Activation::Tanh,
+        Some(0.0),
+        &mut rng,
+        &device,
+    );
+    let parameters = model.flat_parameters().len();
+    let ppo_config = PpoConfig {
+        rollout_steps: config.minibatch,
+        epochs: 1,
+        minibatches: 1,
+        gamma: 0.99,
+        gae_lambda: 0.95,
+        clip_ratio: 0.2,
+        clip_value_loss: true,
+        value_coef: 0.5,
+        entropy_coef: 0.0,
+        max_grad_norm: 1.0,
+        learning_rate: 3e-4,
+        lr_schedule: LrSchedule::Constant,
+        desired_kl: 0.01,
+        normalize_advantages: true,
+        adam_epsilon: 1e-5,
+    };
+    let mut ppo = Ppo::new(model, &ppo_config, device);
+    let mut storage = RolloutStorage::new(config.minibatch, 1, config.obs_dim, config.action_dim);
+    let mut fill = |v: &mut Vec<f32>, scale: f32| {
+        v.iter_mut()
+            .for_each(|x| *x = scale * (rng.random::<f32>() - 0.5))
+    };
+    fill(&mut storage.obs, 2.0);
+    fill(&mut storage.actions, 2.0);
+    fill(&mut storage.log_probs, 1.0);
+    fill(&mut storage.values, 1.0);
+    fill(&mut storage.advantages, 1.0);
+    fill(&mut storage.returns, 1.0);
+    let mut shuffle_rng = ChaCha8Rng::seed_from_u64(1);
+    ppo.update(&storage, &mut shuffle_rng); // warm-up
+    let start = Instant::now();
+    for _ in 0..config.minibatches {
+        ppo.update(&storage, &mut shuffle_rng);
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let samples = (config.minibatch * config.minibatches) as f64;
+    PpoBenchResult {
+        backend: config.backend.name().to_string(),
+        config: config.clone(),
+        parameters,
+        samples_per_second: samples / seconds,
+        ms_per_minibatch: 1e3 * seconds / config.minibatches as f64,
+    }
+}
+
+/// Measured environment throughput.
+#[derive(Debug, Clone, Serialize)]
+pub struct EnvBenchResult {
+    /// Environment id.
+    pub env_id: String,
+    /// Copies stepped in lockstep.
+    pub num_envs: usize,
+    /// Environment steps (summed over copies) per second, with random actions.
+    pub steps_per_second: f64,
+}
+
+/// Steps `num_envs` copies of `env_id` with random actions for `steps` lockstep steps.
+pub fn env_throughput(
+    env_id: &str,
+    num_envs: usize,
+    steps: usize,
+) -> Result<EnvBenchResult, AgentError> {
+    let mut env = rlpkg_env::make(env_id, num_envs)?;
+    let spec = env.spec().clone();
+    let mut buffers = env.buffers();
+    env.reset(0, &mut buffers);
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let a = spec.action.dim();
+    let actions: Vec<Vec<f32>> = (0..16)
+        .map(|_| match spec.action.kind {
+            rlpkg_env::SpaceKind::Discrete { n } => (0..num_envs)
+                .map(|_| rng.random_range(0..n) as f32)
+                .collect(),
+            rlpkg_env::SpaceKind::Continuous => (0..num_envs * a)
+                .map(|k| {
+                    let (low, high) = (spec.action.low[k % a], spec.action.high[k % a]);
+                    low + (high - low) * rng.random::<f32>()
+                })
+                .collect(),
+        })
+        .collect();
+    let start = Instant::now();
+    for step in 0..steps {
+        env.step(&actions[step % actions.len()], &mut buffers)?;
+    }
+    Ok(EnvBenchResult {
+        env_id: env_id.to_string(),
+        num_envs,
+        steps_per_second: (steps * num_envs) as f64 / start.elapsed().as_secs_f64(),
+    })
+}

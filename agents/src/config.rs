@@ -1,0 +1,397 @@
+//! Training configuration read from TOML: every hyperparameter is named and required; unknown keys
+//! and out-of-range values are rejected with the file, the key and the expected range.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::AgentError;
+
+/// A whole training configuration (`configs/cartpole.toml`, `configs/pendulum.toml`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Environment and run length.
+    pub run: RunConfig,
+    /// PPO hyperparameters.
+    pub ppo: PpoConfig,
+    /// Network shape and action head.
+    pub policy: PolicyConfig,
+    /// Observation and reward normalisation.
+    pub normalization: NormalizationConfig,
+}
+
+/// Environment, seed, run length and checkpointing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Environment id, e.g. `CartPole-v1`.
+    pub env: String,
+    /// Number of environment copies stepped in lockstep.
+    pub num_envs: usize,
+    /// Seed of environments, initial weights and sampling.
+    pub seed: u64,
+    /// Environment steps (summed over copies) to train for.
+    pub total_steps: u64,
+    /// Write a checkpoint every this many updates (and after the last one).
+    pub checkpoint_every: usize,
+}
+
+/// How the learning rate changes during training.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LrSchedule {
+    /// Fixed learning rate.
+    Constant,
+    /// Linear decay to zero over the run (CleanRL).
+    Linear,
+    /// RSL-RL's adaptive schedule driven by the measured KL divergence.
+    AdaptiveKl,
+}
+
+/// PPO hyperparameters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PpoConfig {
+    /// Steps per environment copy in each rollout.
+    pub rollout_steps: usize,
+    /// Passes over each rollout.
+    pub epochs: usize,
+    /// Minibatches per pass (rollout_steps x num_envs must divide evenly).
+    pub minibatches: usize,
+    /// Discount factor.
+    pub gamma: f32,
+    /// GAE lambda.
+    pub gae_lambda: f32,
+    /// Clip range of the probability ratio.
+    pub clip_ratio: f32,
+    /// Clip the value update around the rollout's values with the same range.
+    pub clip_value_loss: bool,
+    /// Weight of the value loss.
+    pub value_coef: f32,
+    /// Weight of the entropy bonus.
+    pub entropy_coef: f32,
+    /// Global gradient-norm clip.
+    pub max_grad_norm: f32,
+    /// Initial learning rate.
+    pub learning_rate: f64,
+    /// Learning-rate schedule.
+    pub lr_schedule: LrSchedule,
+    /// Target KL of the adaptive schedule.
+    pub desired_kl: f32,
+    /// Normalise advantages per minibatch.
+    pub normalize_advantages: bool,
+    /// Adam's epsilon.
+    pub adam_epsilon: f32,
+}
+
+/// Hidden-layer activation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ActivationName {
+    /// tanh
+    Tanh,
+    /// max(x, 0)
+    Relu,
+    /// ELU with alpha = 1
+    Elu,
+}
+
+/// How a Gaussian sample is mapped to the environment's action bounds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TransformName {
+    /// Clamp to the bounds (CleanRL).
+    Clip,
+    /// low + (tanh(a) + 1) / 2 (high - low).
+    TanhScale,
+}
+
+/// Actor-critic network.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PolicyConfig {
+    /// Hidden widths of the actor.
+    pub actor_hidden: Vec<usize>,
+    /// Hidden widths of the critic.
+    pub critic_hidden: Vec<usize>,
+    /// Hidden-layer activation.
+    pub activation: ActivationName,
+    /// Initial log standard deviation of the Gaussian head (ignored for discrete actions).
+    pub init_log_std: f32,
+    /// Map from Gaussian samples to the action bounds (ignored for discrete actions).
+    pub action_transform: TransformName,
+}
+
+/// Running normalisation of observations and rewards.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NormalizationConfig {
+    /// Normalise observations with running mean and variance.
+    pub observations: bool,
+    /// Scale rewards by the running standard deviation of the discounted return.
+    pub rewards: bool,
+    /// Normalised observations are clamped to +- this.
+    pub clip_obs: f32,
+    /// Scaled rewards are clamped to +- this.
+    pub clip_reward: f32,
+    /// Added to variances before the square root.
+    pub epsilon: f32,
+}
+
+impl TrainConfig {
+    /// Reads and validates a configuration file; returns it with its text (copied into runs).
+    pub fn load(path: &Path) -> Result<(Self, String), AgentError> {
+        let text = std::fs::read_to_string(path).map_err(|e| AgentError::io(path, e))?;
+        let config = Self::parse(&text, path)?;
+        Ok((config, text))
+    }
+
+    /// Parses and validates configuration text; `path` is only used in messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, AgentError> {
+        let config: TrainConfig = toml::from_str(text).map_err(|e| AgentError::ConfigParse {
+            path: path.into(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    /// Environment transitions in one rollout.
+    pub fn batch_size(&self) -> usize {
+        self.run.num_envs * self.ppo.rollout_steps
+    }
+
+    /// Number of updates the run performs.
+    pub fn num_updates(&self) -> usize {
+        (self.run.total_steps / self.batch_size() as u64) as usize
+    }
+
+    /// Checks every range; the first violation is reported.
+    pub fn validate(&self, path: &Path) -> Result<(), AgentError> {
+        let fail = |key: &str, value: String, expected: &str| {
+            Err(AgentError::ConfigValue {
+                path: path.into(),
+                key: key.into(),
+                value,
+                expected: expected.into(),
+            })
+        };
+        let (run, ppo, policy, norm) = (&self.run, &self.ppo, &self.policy, &self.normalization);
+        if !rlpkg_env::KNOWN_IDS.contains(&run.env.as_str()) {
+            let known = format!("one of {}", rlpkg_env::KNOWN_IDS.join(", "));
+            return fail("run.env", format!("{:?}", run.env), &known);
+        }
+        let counts = [
+            ("run.num_envs", run.num_envs, 1, 1 << 20),
+            ("run.checkpoint_every", run.checkpoint_every, 1, usize::MAX),
+            ("ppo.rollout_steps", ppo.rollout_steps, 1, 1 << 20),
+            ("ppo.epochs", ppo.epochs, 1, 1000),
+            ("ppo.minibatches", ppo.minibatches, 1, 1 << 20),
+        ];
+        for (key, value, low, high) in counts {
+            if !(low..=high).contains(&value) {
+                return fail(
+                    key,
+                    value.to_string(),
+                    &format!("an integer in [{low}, {high}]"),
+                );
+            }
+        }
+        if self.batch_size() % ppo.minibatches != 0 || ppo.minibatches > self.batch_size() {
+            return fail(
+                "ppo.minibatches",
+                ppo.minibatches.to_string(),
+                &format!(
+                    "a divisor of run.num_envs x ppo.rollout_steps = {}",
+                    self.batch_size()
+                ),
+            );
+        }
+        if run.total_steps < self.batch_size() as u64 {
+            return fail(
+                "run.total_steps",
+                run.total_steps.to_string(),
+                &format!("at least one rollout (>= {})", self.batch_size()),
+            );
+        }
+        let reals = [
+            ("ppo.gamma", ppo.gamma as f64, 0.0, 1.0),
+            ("ppo.gae_lambda", ppo.gae_lambda as f64, 0.0, 1.0),
+            ("ppo.clip_ratio", ppo.clip_ratio as f64, 1e-6, 10.0),
+            ("ppo.value_coef", ppo.value_coef as f64, 0.0, 1e3),
+            ("ppo.entropy_coef", ppo.entropy_coef as f64, 0.0, 1e3),
+            ("ppo.max_grad_norm", ppo.max_grad_norm as f64, 1e-8, 1e6),
+            ("ppo.learning_rate", ppo.learning_rate, 1e-8, 1.0),
+            ("ppo.desired_kl", ppo.desired_kl as f64, 1e-8, 10.0),
+            ("ppo.adam_epsilon", ppo.adam_epsilon as f64, 1e-12, 1.0),
+            (
+                "policy.init_log_std",
+                policy.init_log_std as f64,
+                -10.0,
+                5.0,
+            ),
+            ("normalization.clip_obs", norm.clip_obs as f64, 1e-3, 1e6),
+            (
+                "normalization.clip_reward",
+                norm.clip_reward as f64,
+                1e-3,
+                1e6,
+            ),
+            ("normalization.epsilon", norm.epsilon as f64, 1e-12, 1.0),
+        ];
+        for (key, value, low, high) in reals {
+            if !(value >= low && value <= high) {
+                return fail(
+                    key,
+                    value.to_string(),
+                    &format!("a number in [{low:e}, {high:e}]"),
+                );
+            }
+        }
+        for (key, widths) in [
+            ("policy.actor_hidden", &policy.actor_hidden),
+            ("policy.critic_hidden", &policy.critic_hidden),
+        ] {
+            if widths.is_empty() || widths.iter().any(|&w| !(1..=65536).contains(&w)) {
+                return fail(
+                    key,
+                    format!("{widths:?}"),
+                    "a non-empty list of widths in [1, 65536]",
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+/// FNV-1a hash of the configuration text, as 16 hex digits (stored in checkpoints and exports).
+pub fn config_hash(text: &str) -> String {
+    let mut hash: u64 = 0xcbf29ce484222325;
+    for byte in text.bytes() {
+        hash ^= byte as u64;
+        hash = hash.wrapping_mul(0x100000001b3);
+    }
+    format!("{hash:016x}")
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A small valid CartPole configuration used across the crate's tests.
+    pub(crate) const CARTPOLE_TEST: &str = r#"
+[run]
+env = "CartPole-v1"
+num_envs = 4
+seed = 1
+total_steps = 2048
+checkpoint_every = 2
+
+[ppo]
+rollout_steps = 64
+epochs = 2
+minibatches = 4
+gamma = 0.99
+gae_lambda = 0.95
+clip_ratio = 0.2
+clip_value_loss = true
+value_coef = 0.5
+entropy_coef = 0.01
+max_grad_norm = 0.5
+learning_rate = 2.5e-3
+lr_schedule = "linear"
+desired_kl = 0.01
+normalize_advantages = true
+adam_epsilon = 1e-5
+
+[policy]
+actor_hidden = [32, 32]
+critic_hidden = [32, 32]
+activation = "tanh"
+init_log_std = 0.0
+action_transform = "clip"
+
+[normalization]
+observations = true
+rewards = true
+clip_obs = 10.0
+clip_reward = 10.0
+epsilon = 1e-8
+"#;
+
+    fn parse(text: &str) -> Result<TrainConfig, AgentError> {
+        TrainConfig::parse(text, Path::new("cfg.toml"))
+    }
+
+    #[test]
+    fn the_test_config_parses() {
+        let config = parse(CARTPOLE_TEST).unwrap();
+        assert_eq!(config.batch_size(), 256);
+        assert_eq!(config.num_updates(), 8);
+        assert_eq!(config.ppo.lr_schedule, LrSchedule::Linear);
+    }
+
+    #[test]
+    fn unknown_and_missing_keys_name_the_key() {
+        let unknown = CARTPOLE_TEST.replace("gamma = 0.99", "gamma = 0.99\ngama = 0.9");
+        let err = parse(&unknown).unwrap_err().to_string();
+        assert!(
+            err.starts_with("cfg.toml:") && err.contains("gama"),
+            "{err}"
+        );
+        let missing = CARTPOLE_TEST.replace("gae_lambda = 0.95\n", "");
+        let err = parse(&missing).unwrap_err().to_string();
+        assert!(err.contains("gae_lambda"), "{err}");
+    }
+
+    #[test]
+    fn out_of_range_values_name_key_and_range() {
+        let cases = [
+            ("gamma = 0.99", "gamma = 1.5", "ppo.gamma", "[0e0, 1e0]"),
+            (
+                "minibatches = 4",
+                "minibatches = 3",
+                "ppo.minibatches",
+                "divisor",
+            ),
+            ("num_envs = 4", "num_envs = 0", "run.num_envs", "[1,"),
+            (
+                "env = \"CartPole-v1\"",
+                "env = \"Cartpole\"",
+                "run.env",
+                "Pendulum-v1",
+            ),
+            (
+                "actor_hidden = [32, 32]",
+                "actor_hidden = []",
+                "policy.actor_hidden",
+                "non-empty",
+            ),
+            (
+                "learning_rate = 2.5e-3",
+                "learning_rate = -1.0",
+                "ppo.learning_rate",
+                "[1e-8",
+            ),
+        ];
+        for (from, to, key, expected) in cases {
+            let err = parse(&CARTPOLE_TEST.replace(from, to)).unwrap_err();
+            let message = err.to_string();
+            assert!(
+                matches!(err, AgentError::ConfigValue { .. }) && message.contains(key),
+                "{message}"
+            );
+            assert!(
+                message.contains(expected) && message.starts_with("cfg.toml:"),
+                "{message}"
+            );
+        }
+    }
+
+    #[test]
+    fn config_hash_changes_with_text() {
+        assert_ne!(config_hash("a"), config_hash("b"));
+        assert_eq!(config_hash("abc").len(), 16);
+    }
+}

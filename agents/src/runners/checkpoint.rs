@@ -1,0 +1,320 @@
+//! Run folders and checkpoints.
+//!
+//! ```text
+//! runs/<name>/config.toml                    the configuration, as given
+//! runs/<name>/events.out.tfevents.*          TensorBoard scalars
+//! runs/<name>/checkpoints/update_000010/     model.bpk, optimizer.bpk, state.json
+//! runs/<name>/checkpoints/latest             name of the newest complete checkpoint
+//! ```
+//! A checkpoint is written into a temporary folder, renamed into place, and only then named in
+//! `latest` (itself replaced atomically), so a crash never leaves a half-written checkpoint in use.
+//! Floats in `state.json` are stored as their bit patterns so a resume continues bit-identically.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use burn::module::Module;
+use rlpkg_env::EnvState;
+use serde::{Deserialize, Serialize};
+
+use super::Trainer;
+use crate::config::{config_hash, TrainConfig};
+use crate::modules::RunningMeanStd;
+use crate::AgentError;
+
+/// The configuration's copy in a run folder.
+pub const CONFIG_FILE: &str = "config.toml";
+const CHECKPOINTS: &str = "checkpoints";
+const LATEST: &str = "latest";
+const MODEL: &str = "model.bpk";
+const OPTIMIZER: &str = "optimizer.bpk";
+const STATE: &str = "state.json";
+/// Complete checkpoints kept in a run folder.
+const KEEP: usize = 2;
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StatsBits {
+    mean: Vec<u64>,
+    var: Vec<u64>,
+    count: u64,
+}
+
+impl StatsBits {
+    fn from(stats: &RunningMeanStd) -> Self {
+        Self {
+            mean: bits(&stats.mean),
+            var: bits(&stats.var),
+            count: stats.count.to_bits(),
+        }
+    }
+
+    fn restore(&self, stats: &mut RunningMeanStd) {
+        stats.mean = floats(&self.mean);
+        stats.var = floats(&self.var);
+        stats.count = f64::from_bits(self.count);
+    }
+}
+
+/// Counters, random streams, normalisers and environment state of a run (everything but the
+/// model and Adam).
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TrainerState {
+    config_hash: String,
+    update: usize,
+    global_step: u64,
+    learning_rate: u64,
+    rng: [u64; rlpkg_env::RNG_WORDS],
+    obs_stats: Option<StatsBits>,
+    reward_stats: Option<StatsBits>,
+    reward_returns: Option<Vec<u64>>,
+    env_reals: Vec<u64>,
+    env_counters: Vec<u64>,
+    obs: Vec<u32>,
+    final_obs: Vec<u32>,
+    rewards: Vec<u32>,
+    terminated: Vec<bool>,
+    truncated: Vec<bool>,
+    running_returns: Vec<u64>,
+    running_lengths: Vec<usize>,
+    recent_returns: Vec<u32>,
+}
+
+fn bits(values: &[f64]) -> Vec<u64> {
+    values.iter().map(|v| v.to_bits()).collect()
+}
+
+fn floats(values: &[u64]) -> Vec<f64> {
+    values.iter().map(|&v| f64::from_bits(v)).collect()
+}
+
+fn bits32(values: &[f32]) -> Vec<u32> {
+    values.iter().map(|v| v.to_bits()).collect()
+}
+
+fn floats32(values: &[u32]) -> Vec<f32> {
+    values.iter().map(|&v| f32::from_bits(v)).collect()
+}
+
+fn checkpoint_error(path: &Path, reason: impl Into<String>) -> AgentError {
+    AgentError::Checkpoint {
+        path: path.into(),
+        reason: reason.into(),
+    }
+}
+
+/// The newest complete checkpoint folder of `run_dir`.
+pub fn latest_checkpoint(run_dir: &Path) -> Result<PathBuf, AgentError> {
+    let latest = run_dir.join(CHECKPOINTS).join(LATEST);
+    let name = std::fs::read_to_string(&latest).map_err(|_| {
+        checkpoint_error(
+            run_dir,
+            format!(
+                "no checkpoint (expected {}; is this a folder written by `rlpkg train`?)",
+                latest.display()
+            ),
+        )
+    })?;
+    Ok(run_dir.join(CHECKPOINTS).join(name.trim()))
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder.
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), AgentError> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut file = tempfile::NamedTempFile::new_in(dir).map_err(|e| AgentError::io(dir, e))?;
+    file.write_all(bytes).map_err(|e| AgentError::io(path, e))?;
+    file.persist(path)
+        .map_err(|e| AgentError::io(path, e.error))?;
+    Ok(())
+}
+
+impl Trainer {
+    /// Creates `run_dir` (which must not hold a run yet) and copies the configuration into it.
+    pub fn create_run_dir(&self, run_dir: &Path) -> Result<(), AgentError> {
+        if run_dir.join(CONFIG_FILE).exists() {
+            return Err(checkpoint_error(
+                run_dir,
+                "already holds a run (use --resume to continue it, or choose another --name)",
+            ));
+        }
+        std::fs::create_dir_all(run_dir.join(CHECKPOINTS))
+            .map_err(|e| AgentError::io(run_dir, e))?;
+        write_atomically(&run_dir.join(CONFIG_FILE), self.config_text.as_bytes())
+    }
+
+    /// Writes a checkpoint of the current state into `run_dir` and points `latest` at it.
+    pub fn save_checkpoint(&self, run_dir: &Path) -> Result<(), AgentError> {
+        let dir = run_dir.join(CHECKPOINTS);
+        std::fs::create_dir_all(&dir).map_err(|e| AgentError::io(&dir, e))?;
+        let tmp = tempfile::Builder::new()
+            .prefix(".partial-")
+            .tempdir_in(&dir)
+            .map_err(|e| AgentError::io(&dir, e))?;
+        let model_path = tmp.path().join(MODEL);
+        self.ppo
+            .model
+            .clone()
+            .save_file(&model_path)
+            .map_err(|e| checkpoint_error(&model_path, e.to_string()))?;
+        let optim_path = tmp.path().join(OPTIMIZER);
+        self.ppo
+            .optimizer
+            .save(&optim_path)
+            .map_err(|e| checkpoint_error(&optim_path, e.to_string()))?;
+        let state = self.trainer_state();
+        let json = serde_json::to_vec(&state).expect("plain data serialises");
+        std::fs::write(tmp.path().join(STATE), json).map_err(|e| AgentError::io(tmp.path(), e))?;
+
+        let name = format!("update_{:06}", self.update);
+        let target = dir.join(&name);
+        if target.exists() {
+            std::fs::remove_dir_all(&target).map_err(|e| AgentError::io(&target, e))?;
+        }
+        let tmp_path = tmp.keep();
+        std::fs::rename(&tmp_path, &target).map_err(|e| AgentError::io(&target, e))?;
+        write_atomically(&dir.join(LATEST), name.as_bytes())?;
+        prune_old_checkpoints(&dir, KEEP)
+    }
+
+    fn trainer_state(&self) -> TrainerState {
+        let env = self.env.save_state();
+        TrainerState {
+            config_hash: config_hash(&self.config_text),
+            update: self.update,
+            global_step: self.global_step,
+            learning_rate: self.ppo.learning_rate.to_bits(),
+            rng: rlpkg_env::rng_to_words(&self.rng),
+            obs_stats: self.obs_stats.as_ref().map(StatsBits::from),
+            reward_stats: self
+                .reward_norm
+                .as_ref()
+                .map(|r| StatsBits::from(&r.return_stats)),
+            reward_returns: self.reward_norm.as_ref().map(|r| bits(&r.returns)),
+            env_reals: bits(&env.reals),
+            env_counters: env.counters,
+            obs: bits32(&self.buffers.obs),
+            final_obs: bits32(&self.buffers.final_obs),
+            rewards: bits32(&self.buffers.rewards),
+            terminated: self.buffers.terminated.clone(),
+            truncated: self.buffers.truncated.clone(),
+            running_returns: bits(&self.running_returns),
+            running_lengths: self.running_lengths.clone(),
+            recent_returns: self.recent_returns.iter().map(|r| r.to_bits()).collect(),
+        }
+    }
+
+    /// Rebuilds the trainer of `run_dir` from its configuration copy and latest checkpoint.
+    pub fn resume(run_dir: &Path) -> Result<Self, AgentError> {
+        let config_path = run_dir.join(CONFIG_FILE);
+        if !config_path.exists() {
+            return Err(checkpoint_error(
+                run_dir,
+                format!("not a run folder (expected {})", config_path.display()),
+            ));
+        }
+        let (config, text) = TrainConfig::load(&config_path)?;
+        let mut trainer = Trainer::new(config, text)?;
+        let checkpoint = latest_checkpoint(run_dir)?;
+        let state_path = checkpoint.join(STATE);
+        let json = std::fs::read(&state_path).map_err(|e| AgentError::io(&state_path, e))?;
+        let state: TrainerState = serde_json::from_slice(&json).map_err(|e| {
+            checkpoint_error(&state_path, format!("malformed checkpoint state: {e}"))
+        })?;
+        if state.config_hash != trainer.config_hash() {
+            return Err(checkpoint_error(
+                &config_path,
+                "differs from the configuration the checkpoint was trained with",
+            ));
+        }
+        let model_path = checkpoint.join(MODEL);
+        trainer.ppo.model = trainer
+            .ppo
+            .model
+            .clone()
+            .try_load_file(&model_path)
+            .map_err(|e| checkpoint_error(&model_path, e.to_string()))?;
+        let optim_path = checkpoint.join(OPTIMIZER);
+        trainer.ppo.optimizer = trainer
+            .ppo
+            .optimizer
+            .clone()
+            .load(&optim_path)
+            .map_err(|e| checkpoint_error(&optim_path, e.to_string()))?;
+        trainer.restore_state(state, &state_path)?;
+        Ok(trainer)
+    }
+
+    fn restore_state(&mut self, state: TrainerState, path: &Path) -> Result<(), AgentError> {
+        let n = self.config.run.num_envs;
+        let dim = self.spec.observation.dim();
+        if state.obs.len() != n * dim
+            || state.final_obs.len() != n * dim
+            || [
+                state.rewards.len(),
+                state.terminated.len(),
+                state.truncated.len(),
+            ] != [n; 3]
+            || state.running_returns.len() != n
+        {
+            return Err(checkpoint_error(
+                path,
+                "buffer sizes do not match the configuration",
+            ));
+        }
+        self.update = state.update;
+        self.global_step = state.global_step;
+        self.ppo.learning_rate = f64::from_bits(state.learning_rate);
+        self.rng = rlpkg_env::rng_from_words(&state.rng);
+        match (&mut self.obs_stats, &state.obs_stats) {
+            (Some(stats), Some(saved)) if saved.mean.len() == dim => saved.restore(stats),
+            (None, None) => {}
+            _ => {
+                return Err(checkpoint_error(
+                    path,
+                    "observation statistics do not match",
+                ))
+            }
+        }
+        match (
+            &mut self.reward_norm,
+            &state.reward_stats,
+            &state.reward_returns,
+        ) {
+            (Some(norm), Some(saved), Some(returns)) if returns.len() == n => {
+                saved.restore(&mut norm.return_stats);
+                norm.returns = floats(returns);
+            }
+            (None, None, None) => {}
+            _ => return Err(checkpoint_error(path, "reward statistics do not match")),
+        }
+        self.env.load_state(&EnvState {
+            reals: floats(&state.env_reals),
+            counters: state.env_counters,
+        })?;
+        self.buffers.obs = floats32(&state.obs);
+        self.buffers.final_obs = floats32(&state.final_obs);
+        self.buffers.rewards = floats32(&state.rewards);
+        self.buffers.terminated = state.terminated;
+        self.buffers.truncated = state.truncated;
+        self.running_returns = floats(&state.running_returns);
+        self.running_lengths = state.running_lengths;
+        self.recent_returns = floats32(&state.recent_returns).into();
+        Ok(())
+    }
+}
+
+/// Removes all but the `keep` newest `update_*` folders (names sort by update).
+fn prune_old_checkpoints(dir: &Path, keep: usize) -> Result<(), AgentError> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map_err(|e| AgentError::io(dir, e))?
+        .filter_map(|entry| entry.ok()?.file_name().into_string().ok())
+        .filter(|name| name.starts_with("update_"))
+        .collect();
+    names.sort();
+    for name in names.iter().rev().skip(keep) {
+        let path = dir.join(name);
+        std::fs::remove_dir_all(&path).map_err(|e| AgentError::io(&path, e))?;
+    }
+    Ok(())
+}

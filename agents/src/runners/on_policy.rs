@@ -1,0 +1,433 @@
+//! The on-policy runner: collect a rollout from the vectorised environment, compute advantages,
+//! run the PPO update, log, checkpoint; repeat.
+
+use std::collections::VecDeque;
+use std::path::Path;
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::tensor::{Device, Tensor, TensorData};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rlpkg_env::{EnvSpec, SpaceKind, StepBuffers, VecEnv};
+use tensorboard_rs::summary_writer::SummaryWriter;
+
+use crate::algorithms::{Ppo, UpdateStats};
+use crate::config::{config_hash, ActivationName, TrainConfig, TransformName};
+use crate::export::{ActionTransform, Activation, ObsNormaliser};
+use crate::modules::distributions::{
+    categorical_log_prob_entropy, gaussian_log_prob, one_hot, sample_categorical, sample_gaussian,
+};
+use crate::modules::{ActorCritic, RewardNormalizer, RunningMeanStd};
+use crate::storage::RolloutStorage;
+use crate::{AgentError, Backend};
+
+/// Episodes kept for the running mean return shown in the progress bar.
+const RECENT_EPISODES: usize = 100;
+
+/// Everything one update produced, for logging.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UpdateLog {
+    /// Updates done so far (1 after the first).
+    pub update: usize,
+    /// Environment steps so far.
+    pub global_step: u64,
+    /// Returns of the episodes that ended during this rollout.
+    pub episode_returns: Vec<f32>,
+    /// Lengths of those episodes.
+    pub episode_lengths: Vec<usize>,
+    /// Losses and diagnostics of the update.
+    pub stats: UpdateStats,
+    /// Explained variance of the rollout's values.
+    pub explained_variance: f32,
+}
+
+/// What a training call did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainSummary {
+    /// Updates done (in total, including before a resume).
+    pub updates: usize,
+    /// Environment steps done.
+    pub global_step: u64,
+    /// Mean return of the last (up to 100) finished episodes.
+    pub recent_mean_return: f32,
+    /// Wall time of this call in seconds.
+    pub wall_seconds: f64,
+}
+
+/// PPO training of one configuration: environment, learner, normalisers, random stream, counters.
+pub struct Trainer {
+    pub(super) config: TrainConfig,
+    pub(super) config_text: String,
+    pub(super) env: Box<dyn VecEnv>,
+    pub(super) spec: EnvSpec,
+    pub(super) buffers: StepBuffers,
+    /// The learner (model, Adam, learning rate).
+    pub ppo: Ppo,
+    storage: RolloutStorage,
+    pub(super) obs_stats: Option<RunningMeanStd>,
+    pub(super) reward_norm: Option<RewardNormalizer>,
+    transform: Option<ActionTransform>,
+    pub(super) rng: ChaCha8Rng,
+    /// Updates done.
+    pub update: usize,
+    /// Environment steps done.
+    pub global_step: u64,
+    pub(super) running_returns: Vec<f64>,
+    pub(super) running_lengths: Vec<usize>,
+    pub(super) recent_returns: VecDeque<f32>,
+    device: Device,
+}
+
+impl Trainer {
+    /// A fresh run of `config` (`config_text` is the file it came from, copied into the run folder).
+    pub fn new(config: TrainConfig, config_text: String) -> Result<Self, AgentError> {
+        Self::with_backend(config, config_text, Backend::DEFAULT)
+    }
+
+    /// A fresh run on a chosen burn backend.
+    pub fn with_backend(
+        config: TrainConfig,
+        config_text: String,
+        backend: Backend,
+    ) -> Result<Self, AgentError> {
+        let device = backend.device();
+        let mut env = rlpkg_env::make(&config.run.env, config.run.num_envs)?;
+        let spec = env.spec().clone();
+        let mut buffers = env.buffers();
+        env.reset(config.run.seed, &mut buffers);
+        // The trainer's stream is independent of the environments' (which use seed + i).
+        let mut rng = ChaCha8Rng::seed_from_u64(config.run.seed);
+        rng.set_stream(1);
+        let (actor_out, log_std, transform) = match spec.action.kind {
+            SpaceKind::Discrete { n } => (n, None, None),
+            SpaceKind::Continuous => {
+                let (low, high) = (spec.action.low.clone(), spec.action.high.clone());
+                let transform = match config.policy.action_transform {
+                    TransformName::Clip => ActionTransform::Clip { low, high },
+                    TransformName::TanhScale => ActionTransform::TanhScale { low, high },
+                };
+                (
+                    spec.action.dim(),
+                    Some(config.policy.init_log_std),
+                    Some(transform),
+                )
+            }
+        };
+        let activation = match config.policy.activation {
+            ActivationName::Tanh => Activation::Tanh,
+            ActivationName::Relu => Activation::Relu,
+            ActivationName::Elu => Activation::Elu,
+        };
+        let obs_dim = spec.observation.dim();
+        let model = ActorCritic::new(
+            obs_dim,
+            actor_out,
+            &config.policy.actor_hidden,
+            &config.policy.critic_hidden,
+            activation,
+            log_std,
+            &mut rng,
+            &device.clone().autodiff(),
+        );
+        let ppo = Ppo::new(model, &config.ppo, device.clone().autodiff());
+        let norm = &config.normalization;
+        let num_envs = config.run.num_envs;
+        Ok(Self {
+            storage: RolloutStorage::new(
+                config.ppo.rollout_steps,
+                num_envs,
+                obs_dim,
+                spec.action.dim(),
+            ),
+            obs_stats: norm.observations.then(|| RunningMeanStd::new(obs_dim)),
+            reward_norm: norm.rewards.then(|| {
+                RewardNormalizer::new(
+                    num_envs,
+                    config.ppo.gamma as f64,
+                    norm.epsilon,
+                    norm.clip_reward,
+                )
+            }),
+            transform,
+            rng,
+            update: 0,
+            global_step: 0,
+            running_returns: vec![0.0; num_envs],
+            running_lengths: vec![0; num_envs],
+            recent_returns: VecDeque::new(),
+            env,
+            spec,
+            buffers,
+            ppo,
+            config,
+            config_text,
+            device,
+        })
+    }
+
+    /// The configuration being trained.
+    pub fn config(&self) -> &TrainConfig {
+        &self.config
+    }
+
+    /// The environment's spec.
+    pub fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    /// The device without autodiff the rollouts run on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// Hash of the configuration text.
+    pub fn config_hash(&self) -> String {
+        config_hash(&self.config_text)
+    }
+
+    /// Map from Gaussian samples to the action bounds (`None` for discrete actions).
+    pub fn action_transform(&self) -> Option<&ActionTransform> {
+        self.transform.as_ref()
+    }
+
+    /// The frozen observation normaliser, if observations are normalised.
+    pub fn obs_normaliser(&self) -> Option<ObsNormaliser> {
+        let norm = &self.config.normalization;
+        self.obs_stats
+            .as_ref()
+            .map(|s| s.to_obs_normaliser(norm.epsilon, norm.clip_obs))
+    }
+
+    /// Mean return of the last (up to 100) finished episodes (NaN before the first).
+    pub fn recent_mean_return(&self) -> f32 {
+        if self.recent_returns.is_empty() {
+            return f32::NAN;
+        }
+        self.recent_returns.iter().sum::<f32>() / self.recent_returns.len() as f32
+    }
+
+    fn normalise(&self, raw: &[f32], n: usize) -> Vec<f32> {
+        match self.obs_normaliser() {
+            Some(norm) => norm.apply(raw, n),
+            None => raw.to_vec(),
+        }
+    }
+
+    fn obs_tensor(&self, obs: Vec<f32>, n: usize) -> Tensor<2> {
+        let dim = self.spec.observation.dim();
+        Tensor::from_data(TensorData::new(obs, [n, dim]), &self.device)
+    }
+
+    /// One rollout and one PPO update.
+    pub fn run_update(&mut self) -> Result<UpdateLog, AgentError> {
+        let num_updates = self.config.num_updates();
+        self.ppo.anneal(self.update, num_updates);
+        let (episode_returns, episode_lengths) = self.collect_rollout()?;
+        let stats = self.ppo.update(&self.storage, &mut self.rng);
+        self.update += 1;
+        Ok(UpdateLog {
+            update: self.update,
+            global_step: self.global_step,
+            episode_returns,
+            episode_lengths,
+            stats,
+            explained_variance: self.storage.explained_variance(),
+        })
+    }
+
+    /// Steps every copy `rollout_steps` times with the current policy, fills the storage and
+    /// computes advantages; returns the episodes that ended.
+    fn collect_rollout(&mut self) -> Result<(Vec<f32>, Vec<usize>), AgentError> {
+        let policy = self.ppo.model.valid();
+        let n = self.config.run.num_envs;
+        let gamma = self.config.ppo.gamma;
+        let log_std = policy.log_std();
+        let std: Option<Vec<f32>> = log_std
+            .clone()
+            .map(|l| l.exp().try_into_vec_as().expect("f32 std"));
+        let mut finished = (Vec::new(), Vec::new());
+        for step in 0..self.config.ppo.rollout_steps {
+            if let Some(stats) = &mut self.obs_stats {
+                stats.update(&self.buffers.obs, n);
+            }
+            let obs = self.normalise(&self.buffers.obs, n);
+            let obs_t = self.obs_tensor(obs.clone(), n);
+            let head = policy.actor(obs_t.clone());
+            let head_host: Vec<f32> = head.clone().try_into_vec_as().expect("f32 head");
+            let (actions, log_probs) = match (&log_std, &std) {
+                (Some(log_std), Some(std)) => {
+                    let actions = sample_gaussian(&head_host, std, &mut self.rng);
+                    let a = self.spec.action.dim();
+                    let actions_t =
+                        Tensor::from_data(TensorData::new(actions.clone(), [n, a]), &self.device);
+                    (actions, gaussian_log_prob(head, log_std.clone(), actions_t))
+                }
+                _ => {
+                    let classes = head_host.len() / n;
+                    let actions = sample_categorical(&head_host, classes, &mut self.rng);
+                    let hot = Tensor::from_data(
+                        TensorData::new(one_hot(&actions, classes), [n, classes]),
+                        &self.device,
+                    );
+                    (actions, categorical_log_prob_entropy(head, hot).0)
+                }
+            };
+            let log_probs: Vec<f32> = log_probs.try_into_vec_as().expect("f32 log-probs");
+            let values: Vec<f32> = policy.value(obs_t).try_into_vec_as().expect("f32 values");
+            self.storage
+                .record_action(step, &obs, &actions, &log_probs, &values);
+
+            let env_actions = match &self.transform {
+                Some(t) => {
+                    let a = self.spec.action.dim();
+                    actions
+                        .iter()
+                        .enumerate()
+                        .map(|(k, &v)| t.apply(k % a, v))
+                        .collect()
+                }
+                None => actions,
+            };
+            self.env.step(&env_actions, &mut self.buffers)?;
+            self.global_step += n as u64;
+
+            let done: Vec<bool> = (0..n).map(|i| self.buffers.done(i)).collect();
+            for i in 0..n {
+                self.running_returns[i] += self.buffers.rewards[i] as f64;
+                self.running_lengths[i] += 1;
+                if done[i] {
+                    let ret = self.running_returns[i] as f32;
+                    finished.0.push(ret);
+                    finished.1.push(self.running_lengths[i]);
+                    self.recent_returns.push_back(ret);
+                    if self.recent_returns.len() > RECENT_EPISODES {
+                        self.recent_returns.pop_front();
+                    }
+                    self.running_returns[i] = 0.0;
+                    self.running_lengths[i] = 0;
+                }
+            }
+            let mut rewards = self.buffers.rewards.clone();
+            if let Some(norm) = &mut self.reward_norm {
+                norm.normalize(&mut rewards, &done);
+            }
+            // Truncation: bootstrap from the value of the observation the episode ended on.
+            let truncated: Vec<usize> = (0..n)
+                .filter(|&i| self.buffers.truncated[i] && !self.buffers.terminated[i])
+                .collect();
+            if !truncated.is_empty() {
+                let dim = self.spec.observation.dim();
+                let rows: Vec<f32> = truncated
+                    .iter()
+                    .flat_map(|&i| {
+                        self.buffers.final_obs[i * dim..(i + 1) * dim]
+                            .iter()
+                            .copied()
+                    })
+                    .collect();
+                let final_obs = self.normalise(&rows, truncated.len());
+                let final_values: Vec<f32> = policy
+                    .value(self.obs_tensor(final_obs, truncated.len()))
+                    .try_into_vec_as()
+                    .expect("f32 values");
+                for (&i, v) in truncated.iter().zip(final_values) {
+                    rewards[i] += gamma * v;
+                }
+            }
+            self.storage.record_outcome(step, &rewards, &done);
+        }
+        let next_obs = self.normalise(&self.buffers.obs, n);
+        let last_values: Vec<f32> = policy
+            .value(self.obs_tensor(next_obs, n))
+            .try_into_vec_as()
+            .expect("f32 values");
+        self.storage
+            .compute_returns(&last_values, gamma, self.config.ppo.gae_lambda);
+        Ok(finished)
+    }
+
+    /// Trains until `stop_after` updates (or the configured number), logging to TensorBoard and
+    /// checkpointing into `run_dir`.
+    pub fn train(
+        &mut self,
+        run_dir: &Path,
+        stop_after: Option<usize>,
+        show_progress: bool,
+    ) -> Result<TrainSummary, AgentError> {
+        let num_updates = self.config.num_updates();
+        let last = stop_after.map_or(num_updates, |s| s.min(num_updates));
+        let start = Instant::now();
+        let start_step = self.global_step;
+        let mut writer = SummaryWriter::new(run_dir);
+        let total_steps = (num_updates * self.config.batch_size()) as u64;
+        let bar = if show_progress {
+            ProgressBar::new(total_steps)
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps | {msg} | ETA {eta}",
+            )
+            .expect("valid template")
+            .progress_chars("=> "),
+        );
+        bar.set_position(self.global_step);
+        while self.update < last {
+            let log = self.run_update()?;
+            let sps =
+                (self.global_step - start_step) as f64 / start.elapsed().as_secs_f64().max(1e-9);
+            write_scalars(&mut writer, &log, sps);
+            bar.set_position(self.global_step);
+            bar.set_message(format!(
+                "{sps:.0} SPS | mean return {:.1}",
+                self.recent_mean_return()
+            ));
+            if bar.is_hidden() && show_progress && (self.update % 10 == 0 || self.update == last) {
+                eprintln!(
+                    "update {}/{num_updates}  steps {}  SPS {sps:.0}  mean return {:.1}",
+                    self.update,
+                    self.global_step,
+                    self.recent_mean_return()
+                );
+            }
+            if self.update % self.config.run.checkpoint_every == 0 || self.update == last {
+                self.save_checkpoint(run_dir)?;
+            }
+        }
+        writer.flush();
+        bar.finish_and_clear();
+        Ok(TrainSummary {
+            updates: self.update,
+            global_step: self.global_step,
+            recent_mean_return: self.recent_mean_return(),
+            wall_seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+}
+
+fn write_scalars(writer: &mut SummaryWriter, log: &UpdateLog, sps: f64) {
+    let step = log.global_step as usize;
+    if !log.episode_returns.is_empty() {
+        let count = log.episode_returns.len() as f32;
+        writer.add_scalar(
+            "charts/episodic_return",
+            log.episode_returns.iter().sum::<f32>() / count,
+            step,
+        );
+        let lengths = log.episode_lengths.iter().sum::<usize>() as f32;
+        writer.add_scalar("charts/episodic_length", lengths / count, step);
+    }
+    let s = &log.stats;
+    writer.add_scalar("charts/learning_rate", s.learning_rate as f32, step);
+    writer.add_scalar("charts/SPS", sps as f32, step);
+    writer.add_scalar("losses/policy_loss", s.policy_loss, step);
+    writer.add_scalar("losses/value_loss", s.value_loss, step);
+    writer.add_scalar("losses/entropy", s.entropy, step);
+    writer.add_scalar("losses/approx_kl", s.approx_kl, step);
+    writer.add_scalar("losses/clipfrac", s.clip_fraction, step);
+    writer.add_scalar("losses/grad_norm", s.grad_norm, step);
+    writer.add_scalar("losses/explained_variance", log.explained_variance, step);
+}

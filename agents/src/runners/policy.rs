@@ -1,0 +1,150 @@
+//! A trained policy: deterministic actions (Gaussian mean through the action transform, or the
+//! argmax of the logits), its [`PolicyGraph`] for the ONNX exporter, and run evaluation.
+
+use std::path::Path;
+
+use burn::module::Module;
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::Serialize;
+
+use super::Trainer;
+use crate::export::graph::argmax;
+use crate::export::runtime::run_episodes;
+use crate::export::{ActionHead, ActionTransform, ObsNormaliser, PolicyGraph, PolicyMeta};
+use crate::modules::ActorCritic;
+use crate::AgentError;
+
+/// The deterministic policy of a run, on a device without autodiff.
+pub struct TrainedPolicy {
+    /// The actor-critic.
+    pub model: ActorCritic,
+    /// Frozen observation normaliser, if the run normalised observations.
+    pub normaliser: Option<ObsNormaliser>,
+    /// Map from Gaussian means to action bounds (`None` for discrete actions).
+    pub transform: Option<ActionTransform>,
+    /// The environment's spec.
+    pub spec: rlpkg_env::EnvSpec,
+    /// Hash of the training configuration.
+    pub config_hash: String,
+    device: Device,
+}
+
+impl TrainedPolicy {
+    /// The trainer's current policy, frozen.
+    pub fn from_trainer(trainer: &Trainer) -> Self {
+        let model = trainer.ppo.model.valid();
+        let device = trainer.device().clone();
+        Self {
+            model,
+            normaliser: trainer.obs_normaliser(),
+            transform: trainer.action_transform().cloned(),
+            spec: trainer.spec().clone(),
+            config_hash: trainer.config_hash().to_string(),
+            device,
+        }
+    }
+
+    /// Deterministic actions for `n` rows of raw observations, as the environment receives them.
+    pub fn act(&self, obs: &[f32], n: usize) -> Vec<f32> {
+        let dim = self.spec.observation.dim();
+        let normalised = match &self.normaliser {
+            Some(norm) => norm.apply(obs, n),
+            None => obs[..n * dim].to_vec(),
+        };
+        let input = Tensor::<2>::from_data(TensorData::new(normalised, [n, dim]), &self.device);
+        let head: Vec<f32> = self
+            .model
+            .actor(input)
+            .try_into_vec_as()
+            .expect("f32 output");
+        match &self.transform {
+            Some(transform) => {
+                let a = self.spec.action.dim();
+                head.chunks_exact(a)
+                    .flat_map(|mean| mean.iter().enumerate().map(|(j, &m)| transform.apply(j, m)))
+                    .collect()
+            }
+            None => {
+                let classes = head.len() / n;
+                head.chunks_exact(classes)
+                    .map(|row| argmax(row) as f32)
+                    .collect()
+            }
+        }
+    }
+
+    /// The plain-number description the ONNX exporter writes (critic included).
+    pub fn policy_graph(&self) -> PolicyGraph {
+        let actor = self.model.actor_layers();
+        let head = match &self.transform {
+            Some(transform) => ActionHead::Gaussian {
+                transform: transform.clone(),
+            },
+            None => ActionHead::Categorical {
+                n: actor.last().map_or(0, |l| l.d_out),
+            },
+        };
+        PolicyGraph {
+            normaliser: self.normaliser.clone(),
+            actor,
+            critic: Some(self.model.critic_layers()),
+            activation: self.model.activation(),
+            head,
+            meta: PolicyMeta::from_spec(&self.spec, env!("CARGO_PKG_VERSION"), &self.config_hash),
+        }
+    }
+}
+
+/// The policy of the latest checkpoint in `run_dir` as a [`PolicyGraph`].
+pub fn load_policy_graph(run_dir: &Path) -> Result<PolicyGraph, AgentError> {
+    let trainer = Trainer::resume(run_dir)?;
+    Ok(TrainedPolicy::from_trainer(&trainer).policy_graph())
+}
+
+/// Result of a deterministic evaluation.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvalSummary {
+    /// Environment id.
+    pub env_id: String,
+    /// Episodes run.
+    pub episodes: usize,
+    /// Seed of the evaluation environments.
+    pub seed: u64,
+    /// Update the checkpoint was written after.
+    pub update: usize,
+    /// Environment steps of training behind the checkpoint.
+    pub global_step: u64,
+    /// Mean undiscounted return.
+    pub mean_return: f64,
+    /// Population standard deviation of the returns.
+    pub std_return: f64,
+    /// Smallest return.
+    pub min_return: f64,
+    /// Largest return.
+    pub max_return: f64,
+    /// Mean episode length.
+    pub mean_length: f64,
+}
+
+/// Runs `episodes` deterministic episodes (one per environment copy, copy `i` seeded `seed + i`)
+/// with the latest checkpoint of `run_dir`.
+pub fn evaluate_run(run_dir: &Path, episodes: usize, seed: u64) -> Result<EvalSummary, AgentError> {
+    let trainer = Trainer::resume(run_dir)?;
+    let policy = TrainedPolicy::from_trainer(&trainer);
+    let stats = run_episodes::<AgentError>(&policy.spec.id, episodes, seed, |obs, n| {
+        Ok(policy.act(obs, n))
+    })?;
+    let returns = stats.returns.iter().map(|&r| r as f64);
+    Ok(EvalSummary {
+        env_id: policy.spec.id.clone(),
+        episodes,
+        seed,
+        update: trainer.update,
+        global_step: trainer.global_step,
+        mean_return: stats.mean_return(),
+        std_return: stats.std_return(),
+        min_return: returns.clone().fold(f64::INFINITY, f64::min),
+        max_return: returns.fold(f64::NEG_INFINITY, f64::max),
+        mean_length: stats.lengths.iter().sum::<usize>() as f64 / episodes.max(1) as f64,
+    })
+}

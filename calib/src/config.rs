@@ -1,0 +1,344 @@
+//! The calibration configuration (`configs/calibrate.toml`), parsed with serde and range-checked.
+//!
+//! Paths in the file are relative to the working directory (run `rlpkg calibrate` from the repository
+//! root). Every error names the file, the key and what was expected.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::bo::{Acquisition, BoSettings};
+use crate::loss::LossWeights;
+use crate::space::{ParamSpace, ParamSpec};
+
+/// Simulator parameter names that can be calibrated (the paper's names, plus Warp's friction `k_con_f`).
+pub const PARAMETER_NAMES: [&str; 14] = [
+    "k_tri_e", "k_tri_a", "k_tri_d", "k_edge_e", "k_edge_d", "k_cup_e", "k_cup_a", "k_cup_d",
+    "k_spr_e", "k_spr_d", "k_con_e", "k_con_d", "k_con_f", "mu_con",
+];
+
+/// A configuration error: file, key and what was expected.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("{file}: {source}")]
+    Read {
+        /// The configuration file.
+        file: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// TOML syntax, an unknown key or a wrong type (the message names the key and line).
+    #[error("{file}: {message}")]
+    Parse {
+        /// The configuration file.
+        file: PathBuf,
+        /// The TOML error.
+        message: String,
+    },
+    /// A value out of range.
+    #[error("{file}: key `{key}` = {value}: expected {expected}")]
+    Range {
+        /// The configuration file.
+        file: PathBuf,
+        /// Dotted key.
+        key: String,
+        /// The value found.
+        value: String,
+        /// What was expected.
+        expected: String,
+    },
+}
+
+/// Simulator settings of the calibration.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSettings {
+    /// Simulator preset: `reference`, `physical`, or a scene TOML file (scene constants, time step,
+    /// base values of the parameters that are not calibrated).
+    pub preset: String,
+    /// Particles inserted between neighbouring markers: grid (6 + 5p) x (7 + 6p) per layer.
+    #[serde(default = "default_between")]
+    pub between: usize,
+    /// Time step override (s); the preset's when absent.
+    pub dt: Option<f64>,
+    /// Compare only the first `max_seconds` of each trajectory (short runs, tests); all when absent.
+    pub max_seconds: Option<f64>,
+}
+
+fn default_between() -> usize {
+    1
+}
+
+/// Optimiser settings.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimiserSettings {
+    /// Batches of candidates after the initial design.
+    pub iterations: usize,
+    /// Candidates per batch (each is simulated on every training trajectory at once).
+    pub batch_size: usize,
+    /// Latin-hypercube points of the initial design (the preset's parameters are evaluated first).
+    pub initial_points: usize,
+    /// Acquisition function: `{ expected_improvement = { xi = 0.01 } }` or
+    /// `{ confidence_bound = { kappa = 2.0 } }`.
+    #[serde(default)]
+    pub acquisition: Acquisition,
+    /// Seed of the initial design and the acquisition search.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+/// The whole calibration configuration.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrateConfig {
+    /// Dataset folder (manifest.toml + one folder per trajectory).
+    pub data: PathBuf,
+    /// Trajectory ids to fit; the manifest's `train` split when absent.
+    pub trajectories: Option<Vec<String>>,
+    /// Output folder: evaluation log, best parameters, loss curve.
+    pub out_dir: PathBuf,
+    /// Simulator settings.
+    pub sim: SimSettings,
+    /// Optimiser settings.
+    pub optimiser: OptimiserSettings,
+    /// Loss weights (object 1.0, package 0.2 by default, as the study).
+    #[serde(default)]
+    pub loss: LossWeights,
+    /// Parameters to calibrate, with bounds and scale.
+    #[serde(rename = "param")]
+    pub params: Vec<ParamSpec>,
+}
+
+impl CalibrateConfig {
+    /// Reads and validates a configuration file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            file: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and validates configuration text; `file` names it in errors.
+    pub fn parse(text: &str, file: &Path) -> Result<Self, ConfigError> {
+        let config: CalibrateConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            file: file.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        config.validate(file)?;
+        Ok(config)
+    }
+
+    fn validate(&self, file: &Path) -> Result<(), ConfigError> {
+        let range = |key: &str, value: String, expected: &str| ConfigError::Range {
+            file: file.to_path_buf(),
+            key: key.into(),
+            value,
+            expected: expected.into(),
+        };
+        if self.sim.between > 8 {
+            return Err(range(
+                "sim.between",
+                self.sim.between.to_string(),
+                "an integer in [0, 8]",
+            ));
+        }
+        if let Some(dt) = self.sim.dt {
+            if !(dt > 0.0 && dt <= 1e-2) {
+                return Err(range(
+                    "sim.dt",
+                    dt.to_string(),
+                    "a time step in (0, 0.01] s",
+                ));
+            }
+        }
+        if let Some(s) = self.sim.max_seconds {
+            if !(s > 0.0 && s.is_finite()) {
+                return Err(range("sim.max_seconds", s.to_string(), "a duration > 0 s"));
+            }
+        }
+        let o = &self.optimiser;
+        if !(1..=100_000).contains(&o.iterations) {
+            return Err(range(
+                "optimiser.iterations",
+                o.iterations.to_string(),
+                "an integer in [1, 100000]",
+            ));
+        }
+        if !(1..=1024).contains(&o.batch_size) {
+            return Err(range(
+                "optimiser.batch_size",
+                o.batch_size.to_string(),
+                "an integer in [1, 1024]",
+            ));
+        }
+        if !(1..=10_000).contains(&o.initial_points) {
+            return Err(range(
+                "optimiser.initial_points",
+                o.initial_points.to_string(),
+                "an integer in [1, 10000]",
+            ));
+        }
+        match o.acquisition {
+            Acquisition::ExpectedImprovement { xi } if !(0.0..=10.0).contains(&xi) => {
+                return Err(range(
+                    "optimiser.acquisition.expected_improvement.xi",
+                    xi.to_string(),
+                    "a margin in [0, 10]",
+                ));
+            }
+            Acquisition::ConfidenceBound { kappa } if !(0.0..=100.0).contains(&kappa) => {
+                return Err(range(
+                    "optimiser.acquisition.confidence_bound.kappa",
+                    kappa.to_string(),
+                    "a weight in [0, 100]",
+                ));
+            }
+            _ => {}
+        }
+        for (key, w) in [
+            ("loss.object", self.loss.object),
+            ("loss.package", self.loss.package),
+        ] {
+            if !(w >= 0.0 && w.is_finite()) {
+                return Err(range(key, w.to_string(), "a weight >= 0"));
+            }
+        }
+        if let Some(ids) = &self.trajectories {
+            if ids.is_empty() {
+                return Err(range(
+                    "trajectories",
+                    "[]".into(),
+                    "at least one trajectory id (or omit the key for the train split)",
+                ));
+            }
+        }
+        if self.params.is_empty() {
+            return Err(range(
+                "param",
+                "(none)".into(),
+                "at least one [[param]] table",
+            ));
+        }
+        for (i, p) in self.params.iter().enumerate() {
+            if !PARAMETER_NAMES.contains(&p.name.as_str()) {
+                return Err(range(
+                    &format!("param[{i}].name"),
+                    format!("\"{}\"", p.name),
+                    &format!("one of {}", PARAMETER_NAMES.join(", ")),
+                ));
+            }
+        }
+        ParamSpace::new(self.params.clone()).map_err(|e| {
+            range(
+                "param",
+                e.to_string(),
+                "finite bounds with lower < upper (lower > 0 when log = true), unique names",
+            )
+        })?;
+        Ok(())
+    }
+
+    /// The search space of the `[[param]]` tables (validated by [`CalibrateConfig::load`]).
+    pub fn space(&self) -> ParamSpace {
+        ParamSpace::new(self.params.clone()).expect("validated when loaded")
+    }
+
+    /// The optimiser settings for [`crate::bo::BayesOpt`].
+    pub fn bo_settings(&self) -> BoSettings {
+        BoSettings {
+            initial_points: self.optimiser.initial_points,
+            batch_size: self.optimiser.batch_size,
+            acquisition: self.optimiser.acquisition,
+            seed: self.optimiser.seed,
+            ..BoSettings::default()
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+data = "data/deformable-sim-real"
+out_dir = "runs/calibrate"
+trajectories = ["HHHHH", "HHLHL"]
+
+[sim]
+preset = "configs/reference.toml"
+between = 1
+max_seconds = 2.0
+
+[optimiser]
+iterations = 10
+batch_size = 4
+initial_points = 8
+acquisition = { confidence_bound = { kappa = 2.5 } }
+seed = 3
+
+[loss]
+object = 1.0
+package = 0.5
+
+[[param]]
+name = "k_tri_e"
+lower = 1.0e2
+upper = 1.0e7
+log = true
+
+[[param]]
+name = "mu_con"
+lower = 0.0
+upper = 2.0
+"#;
+
+    fn parse(text: &str) -> Result<CalibrateConfig, ConfigError> {
+        CalibrateConfig::parse(text, Path::new("calibrate.toml"))
+    }
+
+    #[test]
+    fn parses_a_full_config() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.space().names(), vec!["k_tri_e", "mu_con"]);
+        assert!(c.params[0].log && !c.params[1].log);
+        assert_eq!(
+            c.optimiser.acquisition,
+            Acquisition::ConfidenceBound { kappa: 2.5 }
+        );
+        assert_eq!(c.loss.package, 0.5);
+        assert_eq!(c.sim.max_seconds, Some(2.0));
+        assert_eq!(c.bo_settings().seed, 3);
+    }
+
+    #[test]
+    fn errors_name_file_key_and_expectation() {
+        let cases = [
+            (
+                GOOD.replace("batch_size = 4", "batch_size = 0"),
+                "optimiser.batch_size",
+            ),
+            (
+                GOOD.replace("name = \"mu_con\"", "name = \"mu\""),
+                "param[1].name",
+            ),
+            (GOOD.replace("lower = 1.0e2", "lower = 0.0"), "log scale"),
+            (GOOD.replace("between = 1", "between = 12"), "sim.between"),
+            (GOOD.replace("kappa = 2.5", "kappa = -1.0"), "kappa"),
+            (GOOD.replace("seed = 3", "seed = 3\ncolour = 1"), "colour"),
+            (
+                GOOD.replace("package = 0.5", "package = -0.5"),
+                "loss.package",
+            ),
+        ];
+        for (text, key) in cases {
+            let msg = parse(&text).unwrap_err().to_string();
+            assert!(
+                msg.contains("calibrate.toml") && msg.contains(key),
+                "{key}: {msg}"
+            );
+        }
+    }
+}

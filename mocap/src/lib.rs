@@ -1,0 +1,12 @@
+//! Motion-capture data for rlpkg: the dataset format (manifest + per-trajectory CSVs + meta), and the
+//! import and cleaning of OptiTrack Motive CSV exports.
+
+pub mod clean;
+pub mod dataset;
+pub mod import;
+pub mod motive;
+
+pub use dataset::{
+    load_trajectory, DataError, Dataset, ManifestEntry, MarkerFrames, Meta, ObjectTrack, Split,
+    ToolTrack, Trajectory,
+};

@@ -1,0 +1,517 @@
+//! Scene configuration: the TOML presets under `configs/` (`reference.toml`, `physical.toml`),
+//! loaded with serde (`deny_unknown_fields`) and range-checked with errors naming file, key and
+//! expected range. Units are SI throughout.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::SimError;
+
+/// Text of `configs/reference.toml`, embedded at build time.
+pub const REFERENCE_TOML: &str = include_str!("../../configs/reference.toml");
+/// Text of `configs/physical.toml`, embedded at build time.
+pub const PHYSICAL_TOML: &str = include_str!("../../configs/physical.toml");
+
+/// Material parameters of one environment, named as in the paper.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Params {
+    /// Package triangle deviatoric stiffness (Warp `tri_ke`, k_mu).
+    pub k_tri_e: f32,
+    /// Package triangle area stiffness (Warp `tri_ka`, k_lambda).
+    pub k_tri_a: f32,
+    /// Package triangle damping (Warp `tri_kd`).
+    pub k_tri_d: f32,
+    /// Package bending stiffness (Warp `edge_ke`).
+    pub k_edge_e: f32,
+    /// Package bending damping (Warp `edge_kd`).
+    pub k_edge_d: f32,
+    /// Cup shell triangle stiffness.
+    pub k_cup_e: f32,
+    /// Cup shell triangle area stiffness.
+    pub k_cup_a: f32,
+    /// Cup shell triangle damping.
+    pub k_cup_d: f32,
+    /// Cup-to-package attachment spring stiffness (N/m).
+    pub k_spr_e: f32,
+    /// Cup-to-package attachment spring damping (N·s/m).
+    pub k_spr_d: f32,
+    /// Disc contact stiffness (the disc shape's `ke`).
+    pub k_con_e: f32,
+    /// Disc contact damping (shape `kd`).
+    pub k_con_d: f32,
+    /// Disc contact friction stiffness (shape `kf`).
+    pub k_con_f: f32,
+    /// Disc contact friction coefficient (shape `mu`).
+    pub mu_con: f32,
+}
+
+impl Params {
+    /// (name, value, lowest, highest) of every parameter, for range checks and display.
+    pub fn entries(&self) -> [(&'static str, f32, f32, f32); 14] {
+        [
+            ("k_tri_e", self.k_tri_e, 0.0, 1e10),
+            ("k_tri_a", self.k_tri_a, 1e-6, 1e10),
+            ("k_tri_d", self.k_tri_d, 0.0, 1e8),
+            ("k_edge_e", self.k_edge_e, 0.0, 1e8),
+            ("k_edge_d", self.k_edge_d, 0.0, 1e6),
+            ("k_cup_e", self.k_cup_e, 0.0, 1e10),
+            ("k_cup_a", self.k_cup_a, 1e-6, 1e10),
+            ("k_cup_d", self.k_cup_d, 0.0, 1e8),
+            ("k_spr_e", self.k_spr_e, 0.0, 1e10),
+            ("k_spr_d", self.k_spr_d, 0.0, 1e8),
+            ("k_con_e", self.k_con_e, 0.0, 1e10),
+            ("k_con_d", self.k_con_d, 0.0, 1e8),
+            ("k_con_f", self.k_con_f, 0.0, 1e8),
+            ("mu_con", self.mu_con, 0.0, 100.0),
+        ]
+    }
+
+    /// Checks every value is finite and in range; `source` names the file for the message.
+    pub fn validate(&self, source: &str) -> Result<(), SimError> {
+        for (name, value, lo, hi) in self.entries() {
+            check(
+                source,
+                &format!("params.{name}"),
+                value as f64,
+                lo as f64,
+                hi as f64,
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// The two-layer package.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PackageConfig {
+    /// Vertices per layer: [along the short side (world z), along the long side (world x)].
+    /// Table 2 sizes are [11, 13], [16, 19], [21, 25], [26, 31]; the reference "marker grid 6x7
+    /// with p particles in between" is [6 + 5p, 7 + 6p].
+    pub grid: [usize; 2],
+    /// Package size [short side, long side] in m.
+    pub size_m: [f32; 2],
+    /// Distance between the two layers at build time (m).
+    pub thickness_m: f32,
+    /// Mass of every package particle (kg); the reference uses 0.8. Exclusive with `film_mass_kg`.
+    #[serde(default)]
+    pub particle_mass_kg: Option<f32>,
+    /// Total film mass spread evenly over the particles (kg); the real film is 0.022.
+    #[serde(default)]
+    pub film_mass_kg: Option<f32>,
+    /// Contact radius of package and cup particles (m); default max(cell sizes, thickness) as in
+    /// the reference.
+    #[serde(default)]
+    pub particle_radius_m: Option<f32>,
+}
+
+/// How the cups follow the tool.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DriveMode {
+    /// The reference velocity servo: v = Kp·(target − x) + Kff·v_tool, then integrated with forces.
+    Servo,
+    /// Cup particles are placed exactly on their targets every substep.
+    Kinematic,
+}
+
+/// The suction tool: cups, their rings, attachment springs and drive.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CupsConfig {
+    /// Cup centres sit on a horizontal circle of this radius around the tool's cup point (m).
+    pub circle_radius_m: f32,
+    /// Angle of each cup on that circle (degrees; offset = r·(sin a, 0, cos a)). One entry per cup.
+    pub angles_deg: Vec<f32>,
+    /// Angular samples per ring (reference 8).
+    pub samples: usize,
+    /// Rings per cup (reference 3).
+    pub rings: usize,
+    /// Inner ring radius (m).
+    pub inner_radius_m: f32,
+    /// Nominal outer radius (m); ring h has radius inner + (outer − inner)·h / rings, as the
+    /// reference (so the outer radius itself is never reached).
+    pub outer_radius_m: f32,
+    /// Mass of one cup, spread over its particles (kg); the reference uses 1e5.
+    pub cup_mass_kg: f32,
+    /// Cup bending stiffness (fixed, not calibrated).
+    pub edge_ke: f32,
+    /// Cup bending damping.
+    pub edge_kd: f32,
+    /// All springs share the minimum initial length as rest length (reference) when true; each
+    /// keeps its own initial length when false.
+    pub common_rest_length: bool,
+    /// Servo or kinematic drive.
+    pub drive: DriveMode,
+    /// Servo proportional gain Kp (1/s).
+    pub servo_kp: f32,
+    /// Servo feed-forward gain Kff.
+    pub servo_kff: f32,
+    /// Cup offsets from the tool are world-frame vectors rotated by the absolute tool orientation
+    /// (reference, §12 item 7) when false; tool-frame offsets (the correct rigid transform) when true.
+    pub offsets_in_tool_frame: bool,
+    /// Seconds the tool is held at its first pose before the trajectory starts (reference 2.0).
+    pub rest_time_s: f32,
+    /// Cup particles also collide with the disc (reference: they do; physically the film is
+    /// always between them).
+    pub collide_with_disc: bool,
+}
+
+/// How the disc's inertia is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InertiaModel {
+    /// The reference code's: the diameter used as the radius for the scaled mass, plus a solid
+    /// cylinder of `extra_mass_kg` (the mesh's own density-1000 mass).
+    Reference,
+    /// A solid cylinder of the total mass with the true radius.
+    SolidCylinder,
+}
+
+/// The rigid disc inside the package.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DiscConfig {
+    /// Disc radius (m).
+    pub radius_m: f32,
+    /// Disc thickness (m).
+    pub thickness_m: f32,
+    /// The object mass given per environment is multiplied by this (reference 100).
+    pub mass_scale: f32,
+    /// Mass added on top (reference: the mesh's own 0.301 kg).
+    pub extra_mass_kg: f32,
+    /// Inertia rule.
+    pub inertia: InertiaModel,
+    /// Points per rim used for disc-ground contact (the reference mesh has 58-gon rims).
+    pub rim_points: usize,
+    /// Disc shape thickness subtracted in disc-ground contact (Warp default 1e-5).
+    pub shape_thickness_m: f32,
+    /// Particle-disc contacts (closest point in the body frame, world normal) are regenerated
+    /// every this many substeps and frozen in between, as Warp's once-per-frame `collide()`
+    /// (reference 512). 1 recomputes the analytic closest point every substep.
+    pub contact_refresh_substeps: u32,
+}
+
+/// Contact materials other than the calibrated disc parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactConfig {
+    /// Model-wide soft contact stiffness (particle-ground; averaged into particle-disc).
+    pub soft_ke: f32,
+    /// Model-wide soft contact damping.
+    pub soft_kd: f32,
+    /// Model-wide soft contact friction stiffness.
+    pub soft_kf: f32,
+    /// Model-wide soft contact friction coefficient.
+    pub soft_mu: f32,
+    /// Average the disc parameters with the model-wide values, as Warp does (reference); use the
+    /// disc parameters as they are when false.
+    pub average_disc_with_soft: bool,
+    /// Ground shape stiffness (averaged with the disc's for disc-ground contact).
+    pub ground_ke: f32,
+    /// Ground shape damping.
+    pub ground_kd: f32,
+    /// Ground shape friction stiffness.
+    pub ground_kf: f32,
+    /// Ground shape friction coefficient.
+    pub ground_mu: f32,
+}
+
+/// Time stepping.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IntegratorConfig {
+    /// Substeps per simulated second (dt = 1 / rate; reference 30720).
+    pub substep_rate_hz: f64,
+    /// Gravity along world y (m/s²; reference −4.0).
+    pub gravity_m_s2: f32,
+    /// Rigid body angular damping (Warp default 0.05).
+    pub angular_damping: f32,
+    /// Particle speed clamp (Warp `particle_max_velocity`, m/s).
+    pub max_particle_speed_m_s: f32,
+}
+
+/// Health checks.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HealthConfig {
+    /// Check every this many substeps.
+    pub check_every: u32,
+    /// A particle or the disc faster than this is exploding (m/s).
+    pub max_speed_m_s: f32,
+    /// A particle or the disc further than this from its start is exploding (m).
+    pub max_displacement_m: f32,
+}
+
+/// A whole scene: everything but the per-environment placement and trajectory.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneConfig {
+    /// The package.
+    pub package: PackageConfig,
+    /// The suction tool.
+    pub cups: CupsConfig,
+    /// The internal object.
+    pub disc: DiscConfig,
+    /// Contact materials.
+    pub contact: ContactConfig,
+    /// Time stepping.
+    pub integrator: IntegratorConfig,
+    /// Health checks.
+    pub health: HealthConfig,
+    /// Default material parameters (each environment may override them).
+    pub params: Params,
+}
+
+fn check(file: &str, key: &str, value: f64, lo: f64, hi: f64) -> Result<(), SimError> {
+    if value.is_finite() && value >= lo && value <= hi {
+        Ok(())
+    } else {
+        Err(SimError::Range {
+            file: file.to_string(),
+            key: key.to_string(),
+            value: format!("{value}"),
+            expected: format!("a finite number in [{lo}, {hi}]"),
+        })
+    }
+}
+
+fn check_count(file: &str, key: &str, value: usize, lo: usize, hi: usize) -> Result<(), SimError> {
+    if (lo..=hi).contains(&value) {
+        Ok(())
+    } else {
+        Err(SimError::Range {
+            file: file.to_string(),
+            key: key.to_string(),
+            value: value.to_string(),
+            expected: format!("an integer in [{lo}, {hi}]"),
+        })
+    }
+}
+
+impl SceneConfig {
+    /// One of the embedded presets: `reference` or `physical`.
+    pub fn preset(name: &str) -> Result<Self, SimError> {
+        match name {
+            "reference" => Self::from_toml_str(REFERENCE_TOML, "configs/reference.toml"),
+            "physical" => Self::from_toml_str(PHYSICAL_TOML, "configs/physical.toml"),
+            other => Err(SimError::UnknownPreset(other.to_string())),
+        }
+    }
+
+    /// Loads and validates a TOML file.
+    pub fn load(path: &Path) -> Result<Self, SimError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates TOML text; `source` names it in error messages.
+    pub fn from_toml_str(text: &str, source: &str) -> Result<Self, SimError> {
+        let config: SceneConfig = toml::from_str(text).map_err(|e| SimError::Parse {
+            file: source.to_string(),
+            message: e.to_string(),
+        })?;
+        config.validate(source)?;
+        Ok(config)
+    }
+
+    /// The substep length (s).
+    pub fn dt(&self) -> f32 {
+        (1.0 / self.integrator.substep_rate_hz) as f32
+    }
+
+    /// Range checks of every key; `source` names the file in messages.
+    pub fn validate(&self, source: &str) -> Result<(), SimError> {
+        let f = source;
+        let p = &self.package;
+        check_count(f, "package.grid[0]", p.grid[0], 2, 200)?;
+        check_count(f, "package.grid[1]", p.grid[1], 2, 200)?;
+        check(f, "package.size_m[0]", p.size_m[0] as f64, 1e-3, 10.0)?;
+        check(f, "package.size_m[1]", p.size_m[1] as f64, 1e-3, 10.0)?;
+        check(f, "package.thickness_m", p.thickness_m as f64, 1e-6, 0.1)?;
+        match (p.particle_mass_kg, p.film_mass_kg) {
+            (Some(m), None) => check(f, "package.particle_mass_kg", m as f64, 1e-9, 1e4)?,
+            (None, Some(m)) => check(f, "package.film_mass_kg", m as f64, 1e-6, 1e5)?,
+            _ => {
+                return Err(SimError::Range {
+                    file: f.to_string(),
+                    key: "package.particle_mass_kg / package.film_mass_kg".into(),
+                    value: "both or neither".into(),
+                    expected: "exactly one of the two keys".into(),
+                })
+            }
+        }
+        if let Some(r) = p.particle_radius_m {
+            check(f, "package.particle_radius_m", r as f64, 1e-5, 1.0)?;
+        }
+        let c = &self.cups;
+        check(
+            f,
+            "cups.circle_radius_m",
+            c.circle_radius_m as f64,
+            0.0,
+            1.0,
+        )?;
+        check_count(
+            f,
+            "cups.angles_deg (number of cups)",
+            c.angles_deg.len(),
+            1,
+            16,
+        )?;
+        for (i, a) in c.angles_deg.iter().enumerate() {
+            check(
+                f,
+                &format!("cups.angles_deg[{i}]"),
+                *a as f64,
+                -360.0,
+                360.0,
+            )?;
+        }
+        check_count(f, "cups.samples", c.samples, 3, 64)?;
+        check_count(f, "cups.rings", c.rings, 2, 16)?;
+        check(f, "cups.inner_radius_m", c.inner_radius_m as f64, 1e-4, 0.5)?;
+        check(
+            f,
+            "cups.outer_radius_m",
+            c.outer_radius_m as f64,
+            c.inner_radius_m as f64 + 1e-4,
+            0.5,
+        )?;
+        check(f, "cups.cup_mass_kg", c.cup_mass_kg as f64, 1e-6, 1e8)?;
+        check(f, "cups.edge_ke", c.edge_ke as f64, 0.0, 1e8)?;
+        check(f, "cups.edge_kd", c.edge_kd as f64, 0.0, 1e6)?;
+        check(f, "cups.servo_kp", c.servo_kp as f64, 0.0, 1e4)?;
+        check(f, "cups.servo_kff", c.servo_kff as f64, 0.0, 10.0)?;
+        check(f, "cups.rest_time_s", c.rest_time_s as f64, 0.0, 60.0)?;
+        let d = &self.disc;
+        check(f, "disc.radius_m", d.radius_m as f64, 1e-3, 1.0)?;
+        check(f, "disc.thickness_m", d.thickness_m as f64, 1e-4, 1.0)?;
+        check(f, "disc.mass_scale", d.mass_scale as f64, 1e-3, 1e4)?;
+        check(f, "disc.extra_mass_kg", d.extra_mass_kg as f64, 0.0, 1e4)?;
+        check_count(f, "disc.rim_points", d.rim_points, 3, 256)?;
+        check(
+            f,
+            "disc.shape_thickness_m",
+            d.shape_thickness_m as f64,
+            0.0,
+            0.01,
+        )?;
+        check_count(
+            f,
+            "disc.contact_refresh_substeps",
+            d.contact_refresh_substeps as usize,
+            1,
+            1 << 20,
+        )?;
+        let k = &self.contact;
+        check(f, "contact.soft_ke", k.soft_ke as f64, 0.0, 1e10)?;
+        check(f, "contact.soft_kd", k.soft_kd as f64, 0.0, 1e8)?;
+        check(f, "contact.soft_kf", k.soft_kf as f64, 0.0, 1e8)?;
+        check(f, "contact.soft_mu", k.soft_mu as f64, 0.0, 100.0)?;
+        check(f, "contact.ground_ke", k.ground_ke as f64, 0.0, 1e10)?;
+        check(f, "contact.ground_kd", k.ground_kd as f64, 0.0, 1e8)?;
+        check(f, "contact.ground_kf", k.ground_kf as f64, 0.0, 1e8)?;
+        check(f, "contact.ground_mu", k.ground_mu as f64, 0.0, 100.0)?;
+        let i = &self.integrator;
+        check(
+            f,
+            "integrator.substep_rate_hz",
+            i.substep_rate_hz,
+            100.0,
+            1e8,
+        )?;
+        check(
+            f,
+            "integrator.gravity_m_s2",
+            i.gravity_m_s2 as f64,
+            -100.0,
+            100.0,
+        )?;
+        check(
+            f,
+            "integrator.angular_damping",
+            i.angular_damping as f64,
+            0.0,
+            1e3,
+        )?;
+        check(
+            f,
+            "integrator.max_particle_speed_m_s",
+            i.max_particle_speed_m_s as f64,
+            1e-3,
+            1e6,
+        )?;
+        let h = &self.health;
+        check_count(f, "health.check_every", h.check_every as usize, 1, 1 << 20)?;
+        check(f, "health.max_speed_m_s", h.max_speed_m_s as f64, 1e-3, 1e6)?;
+        check(
+            f,
+            "health.max_displacement_m",
+            h.max_displacement_m as f64,
+            1e-3,
+            1e4,
+        )?;
+        self.params.validate(source)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_load() {
+        let r = SceneConfig::preset("reference").unwrap();
+        assert_eq!(r.integrator.gravity_m_s2, -4.0);
+        assert_eq!(r.integrator.substep_rate_hz, 30720.0);
+        assert_eq!(r.package.particle_mass_kg, Some(0.8));
+        let p = SceneConfig::preset("physical").unwrap();
+        assert_eq!(p.integrator.gravity_m_s2, -9.81);
+        assert_eq!(p.package.film_mass_kg, Some(0.022));
+        assert!(SceneConfig::preset("nope").is_err());
+    }
+
+    #[test]
+    fn unknown_key_is_rejected_with_its_name() {
+        let text = REFERENCE_TOML.replace("[params]", "[params]\nk_bogus = 1.0");
+        let err = SceneConfig::from_toml_str(&text, "my.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("my.toml") && err.contains("k_bogus"), "{err}");
+    }
+
+    #[test]
+    fn out_of_range_names_file_key_and_range() {
+        let text = REFERENCE_TOML.replace("mu_con = 0.5", "mu_con = -3.0");
+        let err = SceneConfig::from_toml_str(&text, "bad.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("bad.toml") && err.contains("params.mu_con") && err.contains("[0, 100]"),
+            "{err}"
+        );
+        let text = REFERENCE_TOML.replace("grid = [21, 25]", "grid = [1, 25]");
+        let err = SceneConfig::from_toml_str(&text, "bad.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("package.grid[0]"), "{err}");
+    }
+
+    #[test]
+    fn mass_keys_are_exclusive() {
+        let text = REFERENCE_TOML.replace(
+            "particle_mass_kg = 0.8",
+            "particle_mass_kg = 0.8\nfilm_mass_kg = 0.02",
+        );
+        let err = SceneConfig::from_toml_str(&text, "m.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("exactly one"), "{err}");
+    }
+}

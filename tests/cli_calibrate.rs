@@ -1,0 +1,275 @@
+//! End-to-end tests of `rlpkg calibrate` (and `rlpkg eval --params` on its result) through the
+//! binary, on a short piece of a real trajectory of the repository's dataset, a coarse 6 x 7 grid
+//! and a short rest period, so that each run takes seconds.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn rlpkg(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(args)
+        .output()
+        .expect("run rlpkg")
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// A dataset with the first `frames` frames of HHHHH, in split `split`.
+fn small_dataset(dir: &Path, frames: usize, split: &str) -> PathBuf {
+    let source = repo().join("data/deformable-sim-real/HHHHH");
+    let root = dir.join("data");
+    let target = root.join("HHHHH");
+    std::fs::create_dir_all(&target).unwrap();
+    for file in ["tool.csv", "object.csv"] {
+        let body = std::fs::read_to_string(source.join(file)).unwrap();
+        let kept: Vec<&str> = body.lines().take(frames + 1).collect();
+        std::fs::write(target.join(file), kept.join("\n") + "\n").unwrap();
+    }
+    let markers = std::fs::read_to_string(source.join("markers.csv")).unwrap();
+    let kept: Vec<&str> = markers
+        .lines()
+        .enumerate()
+        .filter(|(i, line)| {
+            *i == 0 || line.split(',').next().unwrap().parse::<usize>().unwrap() < frames
+        })
+        .map(|(_, line)| line)
+        .collect();
+    std::fs::write(target.join("markers.csv"), kept.join("\n") + "\n").unwrap();
+    std::fs::copy(source.join("meta.toml"), target.join("meta.toml")).unwrap();
+    let duration = (frames - 1) as f64 / 240.0;
+    std::fs::write(
+        root.join("manifest.toml"),
+        format!(
+            "[[trajectory]]\nid = \"HHHHH\"\nsplit = \"{split}\"\nframes = {frames}\n\
+             duration_s = {duration}\nobject_total_mass_kg = 0.569592\n"
+        ),
+    )
+    .unwrap();
+    root
+}
+
+/// The reference scene on the coarsest grid (6 x 7) with a 0.2 s rest period instead of 2 s.
+fn quick_preset(dir: &Path) -> PathBuf {
+    let reference = std::fs::read_to_string(repo().join("configs/reference.toml")).unwrap();
+    assert!(reference.contains("rest_time_s = 2.0") && reference.contains("grid = [21, 25]"));
+    let path = dir.join("quick.toml");
+    let quick = reference
+        .replace("rest_time_s = 2.0", "rest_time_s = 0.2")
+        .replace("grid = [21, 25]", "grid = [6, 7]");
+    std::fs::write(&path, quick).unwrap();
+    path
+}
+
+fn config(dir: &Path, data: &Path, preset: &Path, extra_param: &str) -> PathBuf {
+    let path = dir.join("calibrate.toml");
+    std::fs::write(
+        &path,
+        format!(
+            r#"
+data = "{}"
+out_dir = "{}"
+
+[sim]
+preset = "{}"
+between = 0
+max_seconds = 0.05
+
+[optimiser]
+iterations = 1
+batch_size = 2
+initial_points = 1
+seed = 5
+
+[[param]]
+name = "k_tri_e"
+lower = 1.0e4
+upper = 1.0e6
+log = true
+{extra_param}"#,
+            data.display(),
+            dir.join("out").display(),
+            preset.display()
+        ),
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn help_lists_the_options() {
+    let out = rlpkg(&["calibrate", "--help"]);
+    assert!(out.status.success());
+    let help = text(&out.stdout);
+    for word in [
+        "--out",
+        "--iterations",
+        "--trajectories",
+        "--max-seconds",
+        "--fresh",
+        "--write-params",
+    ] {
+        assert!(help.contains(word), "help lacks {word}:\n{help}");
+    }
+}
+
+#[test]
+fn missing_config_exits_with_2_and_names_it() {
+    let out = rlpkg(&["calibrate", "configs/does-not-exist-42.toml"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("does-not-exist-42.toml"),
+        "{}",
+        text(&out.stderr)
+    );
+}
+
+#[test]
+fn bad_config_values_exit_with_2_naming_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "train");
+    let preset = quick_preset(dir.path());
+    let path = config(
+        dir.path(),
+        &data,
+        &preset,
+        "\n[[param]]\nname = \"k_nope\"\nlower = 1.0\nupper = 2.0\n",
+    );
+    let out = rlpkg(&["calibrate", path.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("calibrate.toml") && err.contains("param[1].name") && err.contains("k_tri_e"),
+        "{err}"
+    );
+
+    // An unknown trajectory id names the manifest and the id.
+    let path = config(dir.path(), &data, &preset, "");
+    let out = rlpkg(&[
+        "calibrate",
+        path.to_str().unwrap(),
+        "--trajectories",
+        "HXXXX",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("manifest.toml") && err.contains("HXXXX"),
+        "{err}"
+    );
+}
+
+#[test]
+fn calibrates_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "test");
+    let preset = quick_preset(dir.path());
+    let cfg = config(dir.path(), &data, &preset, "");
+    let shipped = dir.path().join("calibrated.toml");
+    let cfg_arg = cfg.to_str().unwrap();
+    // The dataset's only trajectory is in the test split: fit it explicitly.
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "calibrate",
+            cfg_arg,
+            "--trajectories",
+            "HHHHH",
+            "--write-params",
+            shipped.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        rlpkg(&args)
+    };
+    let out = run(&[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(
+        stdout.contains("k_tri_e") && stdout.contains("wall time"),
+        "{stdout}"
+    );
+    let out_dir = dir.path().join("out");
+    let log = std::fs::read_to_string(out_dir.join("evaluations.csv")).unwrap();
+    // Header + 2 batches of 2 (the preset's value and one design point, then one model-based pair).
+    assert_eq!(log.lines().count(), 1 + 4, "{log}");
+    assert!(
+        log.lines().nth(1).unwrap().starts_with("0,0,200000,"),
+        "preset value first:\n{log}"
+    );
+    for line in log.lines().skip(1) {
+        let loss: f64 = line.split(',').nth(4).unwrap().parse().unwrap();
+        assert!(loss.is_finite() && loss > 0.0, "{line}");
+    }
+    let calibrated = std::fs::read_to_string(&shipped).unwrap();
+    assert!(
+        calibrated.starts_with("# Calibrated by `rlpkg calibrate"),
+        "{calibrated}"
+    );
+    assert_eq!(
+        calibrated,
+        std::fs::read_to_string(out_dir.join("calibrated.toml")).unwrap()
+    );
+    let scene = rlpkg_sim::SceneConfig::from_toml_str(&calibrated, "calibrated.toml").unwrap();
+    assert_eq!(scene.package.grid, [6, 7]);
+    assert!((scene.cups.rest_time_s - 0.2).abs() < 1e-6);
+
+    // Rerun: nothing left to do, same result. More iterations: only the new batch is evaluated.
+    let out = run(&[]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("evaluations.csv")).unwrap(),
+        log
+    );
+    assert_eq!(std::fs::read_to_string(&shipped).unwrap(), calibrated);
+    let out = run(&["--iterations", "2"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let longer = std::fs::read_to_string(out_dir.join("evaluations.csv")).unwrap();
+    assert!(
+        longer.starts_with(&log) && longer.lines().count() == 1 + 6,
+        "{longer}"
+    );
+}
+
+#[test]
+fn evaluates_parameters_on_a_split() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "test");
+    let shipped = quick_preset(dir.path());
+    // `rlpkg eval --params` on a scene file: Table 1 for the test split, JSON and pictures.
+    let eval_out = dir.path().join("eval");
+    let out = rlpkg(&[
+        "eval",
+        "--params",
+        shipped.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--split",
+        "test",
+        "--out",
+        eval_out.to_str().unwrap(),
+        "--perturb",
+        "10,50",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let row = &summary["table1"][0];
+    assert_eq!(row["split"], "test");
+    assert_eq!(row["frames"], 30);
+    let cd = row["chamfer_m"]["mean"].as_f64().unwrap();
+    assert!(cd > 0.0 && cd < 0.2, "{row}");
+    assert_eq!(summary["perturb"].as_array().unwrap().len(), 3);
+    for picture in [
+        "HHHHH_marker_error.png",
+        "HHHHH_loss.png",
+        "HHHHH_t00.00.png",
+    ] {
+        let bytes = std::fs::read(eval_out.join(picture)).unwrap();
+        assert!(bytes.starts_with(b"\x89PNG"), "{picture}");
+    }
+    assert!(eval_out.join("summary.json").exists());
+}

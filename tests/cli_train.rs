@@ -1,0 +1,158 @@
+//! End-to-end tests of `rlpkg train` and `rlpkg eval <run>` on tiny configurations.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+const TINY_CARTPOLE: &str = r#"
+[run]
+env = "CartPole-v1"
+num_envs = 4
+seed = 3
+total_steps = 1024
+checkpoint_every = 1
+
+[ppo]
+rollout_steps = 64
+epochs = 2
+minibatches = 2
+gamma = 0.99
+gae_lambda = 0.95
+clip_ratio = 0.2
+clip_value_loss = true
+value_coef = 0.5
+entropy_coef = 0.01
+max_grad_norm = 0.5
+learning_rate = 1e-3
+lr_schedule = "linear"
+desired_kl = 0.01
+normalize_advantages = true
+adam_epsilon = 1e-5
+
+[policy]
+actor_hidden = [16, 16]
+critic_hidden = [16, 16]
+activation = "tanh"
+init_log_std = 0.0
+action_transform = "clip"
+
+[normalization]
+observations = true
+rewards = true
+clip_obs = 10.0
+clip_reward = 10.0
+epsilon = 1e-8
+"#;
+
+fn rlpkg(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("rlpkg runs")
+}
+
+fn ok(output: &Output) -> String {
+    assert!(
+        output.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        output.status.code(),
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout.clone()).unwrap()
+}
+
+fn eval_json(dir: &Path, run: &str) -> serde_json::Value {
+    let out = ok(&rlpkg(&["eval", run, "--episodes", "5", "--json"], dir));
+    serde_json::from_str(&out).expect("eval --json prints JSON")
+}
+
+#[test]
+fn train_eval_and_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("tiny.toml"), TINY_CARTPOLE).unwrap();
+
+    // An uninterrupted run: config copied, checkpoint, TensorBoard events, ONNX export.
+    let out = ok(&rlpkg(&["train", "tiny.toml", "--quiet"], dir.path()));
+    assert!(out.contains("4 / 4 updates"), "{out}");
+    let run = dir.path().join("runs/tiny");
+    assert_eq!(
+        std::fs::read_to_string(run.join("config.toml")).unwrap(),
+        TINY_CARTPOLE
+    );
+    assert!(run.join("checkpoints/latest").exists());
+    assert!(run.join("policy.onnx").exists());
+    let events = std::fs::read_dir(&run)
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .contains("tfevents")
+        })
+        .count();
+    assert!(events >= 1);
+
+    let summary = eval_json(dir.path(), "runs/tiny");
+    assert_eq!(summary["env_id"], "CartPole-v1");
+    assert_eq!(summary["episodes"], 5);
+    assert_eq!(summary["update"], 4);
+    let mean = summary["mean_return"].as_f64().unwrap();
+    assert!((8.0..=500.0).contains(&mean), "{mean}");
+    let text = ok(&rlpkg(
+        &["eval", "runs/tiny", "--episodes", "5"],
+        dir.path(),
+    ));
+    assert!(text.contains("+-"), "{text}");
+
+    // Interrupted after 2 updates, then resumed: the same policy as the uninterrupted run.
+    ok(&rlpkg(
+        &[
+            "train",
+            "tiny.toml",
+            "--name",
+            "split",
+            "--stop-after",
+            "2",
+            "--quiet",
+        ],
+        dir.path(),
+    ));
+    assert_eq!(eval_json(dir.path(), "runs/split")["update"], 2);
+    let out = ok(&rlpkg(
+        &["train", "--resume", "runs/split", "--quiet", "--no-export"],
+        dir.path(),
+    ));
+    assert!(out.contains("4 / 4 updates"), "{out}");
+    assert_eq!(eval_json(dir.path(), "runs/split"), summary);
+
+    // The same name again is refused (input error).
+    let again = rlpkg(&["train", "tiny.toml", "--quiet"], dir.path());
+    assert_eq!(again.status.code(), Some(2));
+}
+
+#[test]
+fn bad_configs_and_run_folders_exit_with_code_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        ("gamma = 0.99", "gamma = 2.0", "ppo.gamma"),
+        ("seed = 3", "seed = 3\nsed = 4", "sed"),
+        ("epochs = 2", "epochs = \"two\"", "epochs"),
+        ("minibatches = 2", "minibatches = 7", "ppo.minibatches"),
+    ];
+    for (i, (from, to, key)) in cases.iter().enumerate() {
+        let file = format!("bad{i}.toml");
+        std::fs::write(dir.path().join(&file), TINY_CARTPOLE.replace(from, to)).unwrap();
+        let out = rlpkg(&["train", &file, "--quiet"], dir.path());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(&file) && stderr.contains(key), "{stderr}");
+        assert!(!dir.path().join("runs").join(format!("bad{i}")).exists());
+    }
+    let missing = rlpkg(&["train", "missing.toml"], dir.path());
+    assert_eq!(missing.status.code(), Some(2));
+    let not_a_run = rlpkg(&["eval", "nowhere"], dir.path());
+    assert_eq!(not_a_run.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&not_a_run.stderr).contains("not a run folder"));
+}
