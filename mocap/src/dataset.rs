@@ -622,7 +622,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    let mut file = tempfile::NamedTempFile::new_in(dir).map_err(io_error(path))?;
+    let mut builder = tempfile::Builder::new();
+    // tempfile creates owner-only files; a data file should read like any other.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(fs::Permissions::from_mode(0o644));
+    }
+    let mut file = builder.tempfile_in(dir).map_err(io_error(path))?;
     file.write_all(bytes).map_err(io_error(path))?;
     file.persist(path).map_err(|err| DataError::Io {
         path: path.to_path_buf(),

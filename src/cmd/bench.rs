@@ -70,7 +70,9 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     for grid in &grids {
         for &n in &envs {
-            let row = rlpkg_sim::bench::run(&scene, *grid, n, args.seconds).map_err(input_error)?;
+            let row = rlpkg_sim::bench::run(&scene, *grid, n, args.seconds).map_err(|err| {
+                input_error(format!("--grid {}x{} --envs {n}: {err}", grid[0], grid[1]))
+            })?;
             eprintln!(
                 "grid {}x{} envs {n}: {:.2} M particle-substeps/s",
                 grid[0],

@@ -159,7 +159,13 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     let wall = started.elapsed().as_secs_f64();
 
     let calibrated = objective.calibrated_scene(&best)?;
-    let text = scene_text(&calibrated, &best, &ids, config.sim.max_seconds, &args.config)?;
+    let text = scene_text(
+        &calibrated,
+        &best,
+        &ids,
+        config.sim.max_seconds,
+        &args.config,
+    )?;
     let calibrated_path = out_dir.join("calibrated.toml");
     driver::write_atomically(&calibrated_path, text.as_bytes())?;
     if let Some(path) = &args.write_params {
@@ -283,38 +289,5 @@ fn print_summary(
     );
     if let Some(path) = extra {
         println!("wrote {}", path.display());
-    }
-}
-
-// TEMPORARY (removed before hand-over): compiles eval_params.rs until the lead declares it in mod.rs.
-#[path = "eval_params.rs"]
-pub mod eval_params_tmp;
-
-// TEMPORARY (removed before hand-over): runs eval_params until `rlpkg eval` dispatches to it.
-#[cfg(test)]
-mod eval_params_smoke {
-    #[test]
-    fn eval_params_runs_on_the_test_split() {
-        let dir = tempfile::tempdir().unwrap();
-        let args = crate::cmd::eval::EvalArgs {
-            run: None,
-            policy: None,
-            episodes: 1,
-            seed: 0,
-            params: Some("configs/calibrated.toml".into()),
-            split: "test".into(),
-            data: "data/deformable-sim-real".into(),
-            sweep_grid: false,
-            perturb: vec![],
-            out: Some(dir.path().to_path_buf()),
-            json: false,
-        };
-        super::eval_params_tmp::run(&args).unwrap();
-        let keep = std::path::Path::new("/tmp/eval-smoke");
-        let _ = std::fs::create_dir_all(keep);
-        for e in std::fs::read_dir(dir.path()).unwrap() {
-            let e = e.unwrap();
-            std::fs::copy(e.path(), keep.join(e.file_name())).unwrap();
-        }
     }
 }

@@ -642,6 +642,7 @@ fn write_loss_plot(path: &Path, target: &Target, loss: &TrajectoryLoss) -> anyho
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
         chart
             .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()
