@@ -47,9 +47,7 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if args.params.is_some() {
-        return Err(input_error(
-            "--params: calibration evaluation is not available in this build",
-        ));
+        return crate::cmd::eval_params::run(&args);
     }
     if let Some(policy) = &args.policy {
         let summary = crate::cmd::export::eval_onnx_policy(policy, args.episodes, args.seed)?;

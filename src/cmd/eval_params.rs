@@ -33,8 +33,6 @@ const PLOT_SIZE: (u32, u32) = (900, 600);
 const STILL_FRACTIONS: [f64; 4] = [0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0];
 /// Grids of the sweep: particles between markers (Table 2: 11x13, 16x19, 21x25, 26x31).
 const SWEEP_BETWEEN: [usize; 4] = [1, 2, 3, 4];
-/// DejaVu Sans, also bundled by `render`, registered here for the plots' text.
-static FONT_BYTES: &[u8] = include_bytes!("../render/DejaVuSans.ttf");
 
 /// Everything `--json` prints and `summary.json` holds.
 #[derive(Serialize)]
@@ -503,22 +501,12 @@ impl Observer for Pictures {
     }
 }
 
-/// Registers the plots' font (idempotent; the same font as the scene pictures).
-fn ensure_font() -> anyhow::Result<()> {
-    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| {
-        plotters::style::register_font("sans-serif", FontStyle::Normal, FONT_BYTES).is_ok()
-    });
-    anyhow::ensure!(ok, "the bundled font DejaVuSans.ttf could not be loaded");
-    Ok(())
-}
-
 /// Draws into a temporary PNG beside `path`, then renames it into place.
 fn write_plot(
     path: &Path,
     draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
-    ensure_font()?;
+    crate::render::ensure_font()?;
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())

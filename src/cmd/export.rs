@@ -168,7 +168,7 @@ fn compare_with_burn(
     let action_dim = graph.action_dim();
     let diff = |obs: &[f32], n: usize| -> anyhow::Result<f32> {
         let (diff, row) = max_abs_diff(&burn.act(obs, n), &onnx.act(obs, n)?, action_dim);
-        if !(diff <= TOLERANCE) {
+        if diff.is_nan() || diff > TOLERANCE {
             anyhow::bail!(
                 "{}: actions differ from the trainer's burn policy by {diff:e} (row {row}, \
                  tolerance {TOLERANCE:e})",

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod calibrate;
 pub mod data;
 pub mod eval;
+pub mod eval_params;
 pub mod export;
 pub mod simulate;
 pub mod train;

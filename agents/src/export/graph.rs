@@ -318,13 +318,17 @@ impl PolicyGraph {
                     norm.var.len()
                 ));
             }
-            if !(norm.clip > 0.0) || !(norm.eps >= 0.0) {
+            if norm.clip.is_nan() || norm.clip <= 0.0 || norm.eps.is_nan() || norm.eps < 0.0 {
                 return bad(format!(
                     "normaliser clip {} must be > 0 and eps {} >= 0",
                     norm.clip, norm.eps
                 ));
             }
-            if let Some(j) = norm.var.iter().position(|v| !(v + norm.eps > 0.0)) {
+            if let Some(j) = norm
+                .var
+                .iter()
+                .position(|v| (v + norm.eps).is_nan() || v + norm.eps <= 0.0)
+            {
                 return bad(format!("normaliser var[{j}] + eps must be > 0"));
             }
         }
@@ -343,7 +347,9 @@ impl PolicyGraph {
                         high.len()
                     ));
                 }
-                if let Some(j) = (0..out_dim).position(|j| !(low[j] <= high[j])) {
+                if let Some(j) = (0..out_dim)
+                    .position(|j| low[j].is_nan() || high[j].is_nan() || low[j] > high[j])
+                {
                     return bad(format!("action bound {j}: low must be <= high"));
                 }
             }

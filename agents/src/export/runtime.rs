@@ -202,8 +202,8 @@ impl Agreement {
         ];
         for (what, diff) in outputs {
             if let Some((max_abs_diff, row)) = diff {
-                // `!(a <= b)` so that NaN counts as a mismatch.
-                if !(max_abs_diff <= tolerance) {
+                // NaN counts as a mismatch.
+                if max_abs_diff.is_nan() || max_abs_diff > tolerance {
                     return Err(ExportError::Mismatch {
                         what: what.into(),
                         max_abs_diff,
