@@ -198,7 +198,8 @@ impl TrainConfig {
                 );
             }
         }
-        if self.batch_size() % ppo.minibatches != 0 || ppo.minibatches > self.batch_size() {
+        if !self.batch_size().is_multiple_of(ppo.minibatches) || ppo.minibatches > self.batch_size()
+        {
             return fail(
                 "ppo.minibatches",
                 ppo.minibatches.to_string(),

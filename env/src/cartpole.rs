@@ -191,14 +191,10 @@ mod tests {
         set_state(&mut env, 1, [0.0; 4]);
         env.step(&[1.0, 0.0], &mut out).unwrap();
         let expected_right = [0.0, 0.02 * 400.0 / 41.0, 0.0, -0.02 * 600.0 / 41.0];
-        for k in 0..4 {
+        for (k, expected) in expected_right.iter().enumerate() {
+            assert!((out.obs[k] as f64 - expected).abs() < 1e-7, "{:?}", out.obs);
             assert!(
-                (out.obs[k] as f64 - expected_right[k]).abs() < 1e-7,
-                "{:?}",
-                out.obs
-            );
-            assert!(
-                (out.obs[4 + k] as f64 + expected_right[k]).abs() < 1e-7,
+                (out.obs[4 + k] as f64 + expected).abs() < 1e-7,
                 "{:?}",
                 out.obs
             );
@@ -226,9 +222,9 @@ mod tests {
             theta + 0.02 * theta_dot,
             theta_dot + 0.02 * theta_acc,
         ];
-        for k in 0..4 {
+        for (k, value) in expected.iter().enumerate() {
             assert!(
-                (out.obs[k] as f64 - expected[k]).abs() < 1e-7,
+                (out.obs[k] as f64 - value).abs() < 1e-7,
                 "{k}: {:?} vs {expected:?}",
                 out.obs
             );

@@ -177,14 +177,15 @@ pub struct Agreement {
     pub rows: usize,
     /// Largest absolute action difference, and the row where it occurs.
     pub action: (f32, usize),
-    /// Largest absolute logit difference (categorical heads).
+    /// Largest logit difference, scaled as in [`max_scaled_diff`] (categorical heads).
     pub logits: Option<(f32, usize)>,
-    /// Largest absolute value difference (when the critic was exported).
+    /// Largest value difference, scaled as in [`max_scaled_diff`] (when the critic was exported).
     pub value: Option<(f32, usize)>,
 }
 
 impl Agreement {
-    /// The largest absolute difference over every compared output.
+    /// The largest difference over every compared output (absolute for actions, scaled for logits
+    /// and values).
     pub fn max_abs_diff(&self) -> f32 {
         [Some(self.action), self.logits, self.value]
             .into_iter()
@@ -220,6 +221,17 @@ impl Agreement {
 /// Largest absolute difference between `a` and `b` (rows of `width`) and its row; NaN anywhere or
 /// different lengths give an infinite difference.
 pub fn max_abs_diff(a: &[f32], b: &[f32], width: usize) -> (f32, usize) {
+    max_diff(a, b, width, |_| 1.0)
+}
+
+/// Like [`max_abs_diff`], but each difference is divided by `max(1, |b|)`: absolute for reference
+/// values up to 1 in magnitude, relative above (an f32 holds about 7 significant digits, so a value
+/// estimate of 300 cannot agree to 1e-5 absolutely).
+pub fn max_scaled_diff(a: &[f32], b: &[f32], width: usize) -> (f32, usize) {
+    max_diff(a, b, width, |reference| reference.abs().max(1.0))
+}
+
+fn max_diff(a: &[f32], b: &[f32], width: usize, scale: impl Fn(f32) -> f32) -> (f32, usize) {
     if a.len() != b.len() {
         return (f32::INFINITY, 0);
     }
@@ -228,7 +240,7 @@ pub fn max_abs_diff(a: &[f32], b: &[f32], width: usize) -> (f32, usize) {
         let diff = if x.is_nan() || y.is_nan() {
             f32::INFINITY
         } else {
-            (x - y).abs()
+            (x - y).abs() / scale(*y)
         };
         if diff > worst.0 {
             worst = (diff, i / width.max(1));
@@ -249,13 +261,15 @@ pub fn compare_with_reference(
     let want_action = expected.act(obs, n);
     let action = max_abs_diff(&got.action, &want_action, expected.action_dim());
     let logits = match (&got.logits, &expected.head) {
-        (Some(logits), super::ActionHead::Categorical { n: width }) => {
-            Some(max_abs_diff(logits, &expected.actor_output(obs, n), *width))
-        }
+        (Some(logits), super::ActionHead::Categorical { n: width }) => Some(max_scaled_diff(
+            logits,
+            &expected.actor_output(obs, n),
+            *width,
+        )),
         _ => None,
     };
     let value = match (&got.value, expected.value(obs, n)) {
-        (Some(got), Some(want)) => Some(max_abs_diff(got, &want, 1)),
+        (Some(got), Some(want)) => Some(max_scaled_diff(got, &want, 1)),
         _ => None,
     };
     Ok(Agreement {

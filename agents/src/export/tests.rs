@@ -320,3 +320,13 @@ fn burn_policy_matches_tract_on_random_and_visited_observations() {
         }
     }
 }
+
+#[test]
+fn scaled_differences_are_relative_above_one() {
+    use runtime::{max_abs_diff, max_scaled_diff};
+    assert_eq!(max_scaled_diff(&[0.5, 301.0], &[0.25, 300.0], 1), (0.25, 0));
+    assert_eq!(max_scaled_diff(&[0.0, 303.0], &[0.0, 300.0], 1), (0.01, 1));
+    assert_eq!(max_abs_diff(&[0.0, 303.0], &[0.0, 300.0], 2), (3.0, 0));
+    assert_eq!(max_abs_diff(&[f32::NAN], &[1.0], 1).0, f32::INFINITY);
+    assert_eq!(max_scaled_diff(&[1.0], &[1.0, 2.0], 1).0, f32::INFINITY);
+}

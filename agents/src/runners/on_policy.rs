@@ -294,10 +294,10 @@ impl Trainer {
             self.global_step += n as u64;
 
             let done: Vec<bool> = (0..n).map(|i| self.buffers.done(i)).collect();
-            for i in 0..n {
+            for (i, &episode_done) in done.iter().enumerate() {
                 self.running_returns[i] += self.buffers.rewards[i] as f64;
                 self.running_lengths[i] += 1;
-                if done[i] {
+                if episode_done {
                     let ret = self.running_returns[i] as f32;
                     finished.0.push(ret);
                     finished.1.push(self.running_lengths[i]);
@@ -385,7 +385,10 @@ impl Trainer {
                 "{sps:.0} SPS | mean return {:.1}",
                 self.recent_mean_return()
             ));
-            if bar.is_hidden() && show_progress && (self.update % 10 == 0 || self.update == last) {
+            if bar.is_hidden()
+                && show_progress
+                && (self.update.is_multiple_of(10) || self.update == last)
+            {
                 eprintln!(
                     "update {}/{num_updates}  steps {}  SPS {sps:.0}  mean return {:.1}",
                     self.update,
@@ -393,7 +396,7 @@ impl Trainer {
                     self.recent_mean_return()
                 );
             }
-            if self.update % self.config.run.checkpoint_every == 0 || self.update == last {
+            if self.update.is_multiple_of(self.config.run.checkpoint_every) || self.update == last {
                 self.save_checkpoint(run_dir)?;
             }
         }
