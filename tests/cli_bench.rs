@@ -12,7 +12,15 @@ fn rlpkg(args: &[&str]) -> std::process::Output {
 #[test]
 fn bench_sim_prints_json_rows_with_positive_throughput() {
     let out = rlpkg(&[
-        "bench", "sim", "--grid", "6x7", "--envs", "1,3", "--seconds", "0.1", "--json",
+        "bench",
+        "sim",
+        "--grid",
+        "6x7",
+        "--envs",
+        "1,3",
+        "--seconds",
+        "0.1",
+        "--json",
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
@@ -26,7 +34,10 @@ fn bench_sim_prints_json_rows_with_positive_throughput() {
         assert!(row["particle_substeps_per_s"].as_f64().unwrap() > 0.0);
         assert!(row["real_time_factor_per_env"].as_f64().unwrap() > 0.0);
     }
-    assert!(stderr.contains("particle-ss/s"), "the table goes to stderr with --json: {stderr}");
+    assert!(
+        stderr.contains("particle-ss/s"),
+        "the table goes to stderr with --json: {stderr}"
+    );
 }
 
 #[test]

@@ -266,14 +266,10 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), DriverError> {
         path: path.to_path_buf(),
         message,
     };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| fail(e.to_string()))?;
-    tmp.write_all(bytes).map_err(|e| fail(e.to_string()))?;
-    tmp.persist(path).map_err(|e| fail(e.to_string()))?;
-    Ok(())
+    let mut file =
+        atomic_write_file::AtomicWriteFile::open(path).map_err(|e| fail(e.to_string()))?;
+    file.write_all(bytes).map_err(|e| fail(e.to_string()))?;
+    file.commit().map_err(|e| fail(e.to_string()))
 }
 
 #[cfg(test)]

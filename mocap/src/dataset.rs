@@ -163,12 +163,19 @@ impl Dataset {
         let mut seen = std::collections::HashSet::new();
         for entry in &manifest.trajectory {
             if !seen.insert(entry.id.as_str()) {
-                return Err(invalid(&path, format!("trajectory id {:?} is listed twice", entry.id)));
+                return Err(invalid(
+                    &path,
+                    format!("trajectory id {:?} is listed twice", entry.id),
+                ));
             }
             if !dir.join(&entry.id).is_dir() {
                 return Err(invalid(
                     &path,
-                    format!("trajectory {:?} has no folder {}", entry.id, dir.join(&entry.id).display()),
+                    format!(
+                        "trajectory {:?} has no folder {}",
+                        entry.id,
+                        dir.join(&entry.id).display()
+                    ),
                 ));
             }
         }
@@ -192,7 +199,10 @@ impl Dataset {
         if !self.entries.iter().any(|entry| entry.id == id) {
             return Err(invalid(
                 &self.root.join("manifest.toml"),
-                format!("no trajectory {id:?}; known ids: {}", self.ids(None).join(", ")),
+                format!(
+                    "no trajectory {id:?}; known ids: {}",
+                    self.ids(None).join(", ")
+                ),
             ));
         }
         load_trajectory(&self.root.join(id))
@@ -330,7 +340,10 @@ fn read_rows(path: &Path, header: &[&str]) -> Result<Vec<(usize, Vec<f64>)>, Dat
         .flexible(true)
         .from_path(path)
         .map_err(|err| csv_error(path, err))?;
-    let found = reader.headers().map_err(|err| csv_error(path, err))?.clone();
+    let found = reader
+        .headers()
+        .map_err(|err| csv_error(path, err))?
+        .clone();
     if found.iter().map(str::trim).ne(header.iter().copied()) {
         return Err(DataError::Malformed {
             path: path.to_path_buf(),
@@ -468,7 +481,10 @@ fn read_markers(path: &Path, times: &[f64]) -> Result<MarkerFrames, DataError> {
             message,
         };
         if v[0] < 0.0 || v[0].fract() != 0.0 {
-            return Err(malformed(format!("frame must be a whole number >= 0, found {}", v[0])));
+            return Err(malformed(format!(
+                "frame must be a whole number >= 0, found {}",
+                v[0]
+            )));
         }
         let frame = v[0] as usize;
         if frame >= times.len() {
@@ -512,7 +528,10 @@ fn read_meta(path: &Path) -> Result<Meta, DataError> {
     ];
     for (key, value) in positive {
         if !(value.is_finite() && value > 0.0) {
-            return Err(invalid(path, format!("{key} must be a positive number, found {value}")));
+            return Err(invalid(
+                path,
+                format!("{key} must be a positive number, found {value}"),
+            ));
         }
     }
     if meta.initial_marker_positions_m.len() < 3 {
@@ -527,7 +546,10 @@ fn read_meta(path: &Path) -> Result<Meta, DataError> {
 /// Loads and validates one trajectory folder (`tool.csv`, `object.csv`, `markers.csv`, `meta.toml`).
 pub fn load_trajectory(dir: &Path) -> Result<Trajectory, DataError> {
     if !dir.is_dir() {
-        return Err(invalid(dir, "expected a trajectory folder (tool.csv, object.csv, markers.csv, meta.toml)"));
+        return Err(invalid(
+            dir,
+            "expected a trajectory folder (tool.csv, object.csv, markers.csv, meta.toml)",
+        ));
     }
     let meta = read_meta(&dir.join("meta.toml"))?;
     let tool_path = dir.join("tool.csv");
@@ -544,7 +566,8 @@ pub fn load_trajectory(dir: &Path) -> Result<Trajectory, DataError> {
             ),
         ));
     }
-    if let Some(k) = (0..tool.t.len()).find(|&k| (object.t[k] - tool.t[k]).abs() > TIME_TOLERANCE_S) {
+    if let Some(k) = (0..tool.t.len()).find(|&k| (object.t[k] - tool.t[k]).abs() > TIME_TOLERANCE_S)
+    {
         return Err(invalid(
             &object_path,
             format!(
@@ -570,7 +593,8 @@ impl Trajectory {
     pub fn save(&self, dir: &Path) -> Result<(), DataError> {
         fs::create_dir_all(dir).map_err(io_error(dir))?;
         let meta_path = dir.join("meta.toml");
-        let meta = toml::to_string(&self.meta).map_err(|err| invalid(&meta_path, err.to_string()))?;
+        let meta =
+            toml::to_string(&self.meta).map_err(|err| invalid(&meta_path, err.to_string()))?;
         write_atomic(&meta_path, meta.as_bytes())?;
 
         let tool = &self.tool;
@@ -602,7 +626,10 @@ impl Trajectory {
         for k in 0..self.markers.len() {
             for point in self.markers.frame(k) {
                 text.push_str(&format!("{k},"));
-                push_row(&mut text, &[self.markers.t(k), point[0], point[1], point[2]]);
+                push_row(
+                    &mut text,
+                    &[self.markers.t(k), point[0], point[1], point[2]],
+                );
             }
         }
         write_atomic(&dir.join("markers.csv"), text.as_bytes())
@@ -618,24 +645,9 @@ fn push_row(text: &mut String, values: &[f64]) {
 
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let mut builder = tempfile::Builder::new();
-    // tempfile creates owner-only files; a data file should read like any other.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        builder.permissions(fs::Permissions::from_mode(0o644));
-    }
-    let mut file = builder.tempfile_in(dir).map_err(io_error(path))?;
+    let mut file = atomic_write_file::AtomicWriteFile::open(path).map_err(io_error(path))?;
     file.write_all(bytes).map_err(io_error(path))?;
-    file.persist(path).map_err(|err| DataError::Io {
-        path: path.to_path_buf(),
-        source: err.error,
-    })?;
-    Ok(())
+    file.commit().map_err(io_error(path))
 }
 
 #[cfg(test)]
@@ -664,7 +676,9 @@ mod tests {
         assert_eq!(traj.tool.t.len(), entry.frames);
         assert_eq!(traj.markers.len(), entry.frames);
         assert!((traj.tool.t.last().unwrap() - entry.duration_s).abs() < 1e-3);
-        let counts: Vec<usize> = (0..traj.markers.len()).map(|k| traj.markers.frame(k).len()).collect();
+        let counts: Vec<usize> = (0..traj.markers.len())
+            .map(|k| traj.markers.frame(k).len())
+            .collect();
         assert_eq!(counts.iter().min().copied(), entry.markers_per_frame_min);
         assert_eq!(counts.iter().max().copied(), entry.markers_per_frame_max);
         assert_eq!(traj.meta.initial_marker_positions_m.len(), 37);
@@ -713,18 +727,30 @@ mod tests {
     fn a_short_row_is_reported() {
         let (_dir, out) = broken_copy("tool.csv", |t| replace_line(t, 3, "0.1,1,2"));
         let message = load_trajectory(&out).unwrap_err().to_string();
-        assert!(message.contains("tool.csv:3:") && message.contains("expected 20 values"), "{message}");
+        assert!(
+            message.contains("tool.csv:3:") && message.contains("expected 20 values"),
+            "{message}"
+        );
     }
 
     #[test]
     fn time_going_backwards_is_reported() {
         let (_dir, out) = broken_copy("object.csv", |t| {
-            let fields: Vec<String> = t.lines().nth(3).unwrap().split(',').map(String::from).collect();
+            let fields: Vec<String> = t
+                .lines()
+                .nth(3)
+                .unwrap()
+                .split(',')
+                .map(String::from)
+                .collect();
             let row = format!("0.000001,{}", fields[1..].join(","));
             replace_line(t, 4, &row)
         });
         let message = load_trajectory(&out).unwrap_err().to_string();
-        assert!(message.contains("object.csv:4:") && message.contains("time must increase"), "{message}");
+        assert!(
+            message.contains("object.csv:4:") && message.contains("time must increase"),
+            "{message}"
+        );
     }
 
     #[test]
@@ -741,7 +767,10 @@ mod tests {
         let original = fs::read_to_string(shipped().join("HHLHL/meta.toml")).unwrap();
         let bogus_line = original.lines().count() + 2;
         let message = load_trajectory(&out).unwrap_err().to_string();
-        assert!(message.contains(&format!("meta.toml:{bogus_line}:")), "{message}");
+        assert!(
+            message.contains(&format!("meta.toml:{bogus_line}:")),
+            "{message}"
+        );
         assert!(message.contains("bogus_key"), "{message}");
     }
 }

@@ -23,11 +23,10 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use rlpkg_calib::objective::Target;
 use rlpkg_mocap::dataset::write_atomic;
 use rlpkg_mocap::{load_trajectory, Trajectory};
-use rlpkg_sim::{
-    EnvSpec, Model, Placement, SceneConfig, Simulator, SurfaceEmbedding, ToolSample, ToolTrajectory,
-};
+use rlpkg_sim::{EnvSpec, Model, SceneConfig, Simulator, SurfaceEmbedding};
 
 use crate::error::input_error;
 use crate::render::{self, Bounds, Disc, Frame, GifWriter, View};
@@ -221,40 +220,17 @@ impl Replay {
                 args.trajectory.join("tool.csv").display()
             )));
         }
-        let meta = &recording.meta;
-        let initial_markers: Vec<[f32; 3]> = meta
-            .initial_marker_positions_m
-            .iter()
-            .map(|&p| f32x3(p))
-            .collect();
-        let meta_file = args.trajectory.join("meta.toml");
-        let placement = Placement::from_markers(
-            &initial_markers,
-            f32x3(meta.initial_suction_cup_position_m),
-            f32x3(recording.object.position[0]),
-        )
-        .map_err(|err| input_error(format!("{}: {err}", meta_file.display())))?;
-        let tool = &recording.tool;
-        let samples = (0..tool.t.len())
-            .map(|k| ToolSample {
-                t: tool.t[k],
-                position: tool.position[k],
-                orientation: tool.orientation[k],
-                velocity: tool.velocity[k],
-            })
-            .collect();
-        let trajectory = ToolTrajectory::new(samples).map_err(|err| {
-            input_error(format!(
-                "{}: {err}",
-                args.trajectory.join("tool.csv").display()
-            ))
-        })?;
+        // The same placement and tool drive as the calibration uses, so a replay shows what it fits.
+        let target = Target::new(recording, None)
+            .map_err(|err| input_error(format!("{}: {err}", args.trajectory.display())))?;
+        let placement = target.placement;
+        let initial_markers = target.initial_markers;
         let model = Arc::new(Model::new(config).map_err(input_error)?);
         let spec = EnvSpec {
             placement,
             params: config.params,
-            object_mass_kg: meta.object_total_mass_kg as f32,
-            trajectory: Arc::new(trajectory),
+            object_mass_kg: target.object_mass_kg,
+            trajectory: target.tool,
         };
         let sim = Simulator::new(model.clone(), vec![spec]).map_err(input_error)?;
 

@@ -53,15 +53,9 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
         path: path.to_path_buf(),
         source,
     };
-    let dir = match path.parent() {
-        Some(dir) if !dir.as_os_str().is_empty() => dir,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(io_err)?;
-    tmp.write_all(bytes).map_err(io_err)?;
-    tmp.as_file().sync_all().map_err(io_err)?;
-    tmp.persist(path).map_err(|e| io_err(e.error))?;
-    Ok(())
+    let mut file = atomic_write_file::AtomicWriteFile::open(path).map_err(io_err)?;
+    file.write_all(bytes).map_err(io_err)?;
+    file.commit().map_err(io_err)
 }
 
 /// Builds the ONNX `ModelProto` for `graph` (validated first).

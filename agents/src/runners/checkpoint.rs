@@ -121,12 +121,10 @@ pub fn latest_checkpoint(run_dir: &Path) -> Result<PathBuf, AgentError> {
 
 /// Writes `bytes` to `path` through a temporary file in the same folder.
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), AgentError> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let mut file = tempfile::NamedTempFile::new_in(dir).map_err(|e| AgentError::io(dir, e))?;
+    let mut file =
+        atomic_write_file::AtomicWriteFile::open(path).map_err(|e| AgentError::io(path, e))?;
     file.write_all(bytes).map_err(|e| AgentError::io(path, e))?;
-    file.persist(path)
-        .map_err(|e| AgentError::io(path, e.error))?;
-    Ok(())
+    file.commit().map_err(|e| AgentError::io(path, e))
 }
 
 impl Trainer {
