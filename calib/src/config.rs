@@ -64,6 +64,9 @@ pub struct SimSettings {
     pub dt: Option<f64>,
     /// Compare only the first `max_seconds` of each trajectory (short runs, tests); all when absent.
     pub max_seconds: Option<f64>,
+    /// Hold the disc at each recording's start during the rest (`disc.hold_at_recorded_start` of
+    /// the scene); the preset's setting when absent.
+    pub hold_disc: Option<bool>,
 }
 
 fn default_between() -> usize {
@@ -271,6 +274,7 @@ trajectories = ["HHHHH", "HHLHL"]
 preset = "configs/reference.toml"
 between = 1
 max_seconds = 2.0
+hold_disc = true
 
 [optimiser]
 iterations = 10
@@ -310,6 +314,7 @@ upper = 2.0
         );
         assert_eq!(c.loss.package, 0.5);
         assert_eq!(c.sim.max_seconds, Some(2.0));
+        assert_eq!(c.sim.hold_disc, Some(true));
         assert_eq!(c.bo_settings().seed, 3);
     }
 

@@ -121,8 +121,14 @@ pub struct Target {
 }
 
 impl Target {
-    /// Prepares `trajectory`, keeping the frames with `t <= max_seconds` (all when `None`).
-    pub fn new(trajectory: &Trajectory, max_seconds: Option<f64>) -> Result<Self, ObjectiveError> {
+    /// Prepares `trajectory`, keeping the frames with `t <= max_seconds` (all when `None`). With
+    /// `hold_disc` the disc is held at the recorded start during the rest
+    /// (`DiscConfig::hold_at_recorded_start`).
+    pub fn new(
+        trajectory: &Trajectory,
+        max_seconds: Option<f64>,
+        hold_disc: bool,
+    ) -> Result<Self, ObjectiveError> {
         let fail = |message: String| ObjectiveError::Trajectory {
             id: trajectory.id.clone(),
             message,
@@ -142,6 +148,11 @@ impl Target {
             f32s(first_object),
         )
         .map_err(|e| fail(e.to_string()))?;
+        let placement = if hold_disc {
+            placement.holding_disc_at(f32s(first_object))
+        } else {
+            placement
+        };
         let tool = &trajectory.tool;
         let samples = (0..tool.t.len())
             .map(|i| ToolSample {
@@ -218,6 +229,11 @@ pub struct RolloutOutcome {
 }
 
 /// Simulates every candidate on every target in one batch; returns outcomes `[candidate][target]`.
+///
+/// Environments are laid out target-major with targets sorted by length, so each block of lanes
+/// holds candidates of trajectories of similar length; an environment is retired once its last
+/// frame is compared, and a block of finished environments costs nothing. The results do not
+/// depend on this layout (each environment is bit-identical in any batch).
 pub fn rollout(
     model: &Arc<Model>,
     targets: &[Target],
@@ -225,21 +241,29 @@ pub fn rollout(
     observer: &mut dyn Observer,
 ) -> Result<Vec<Vec<RolloutOutcome>>, ObjectiveError> {
     let n_targets = targets.len();
-    let specs: Vec<EnvSpec> = candidates
-        .iter()
-        .flat_map(|params| {
-            targets.iter().map(|t| EnvSpec {
-                placement: t.placement,
+    let n_candidates = candidates.len();
+    let mut by_length: Vec<usize> = (0..n_targets).collect();
+    by_length.sort_by(|&a, &b| targets[a].duration().total_cmp(&targets[b].duration()));
+    // env_of[t][c]: the environment simulating candidate c on target t.
+    let mut env_of = vec![vec![0usize; n_candidates]; n_targets];
+    let mut slot_of_env = Vec::with_capacity(n_targets * n_candidates);
+    let mut specs = Vec::with_capacity(n_targets * n_candidates);
+    for &t in &by_length {
+        for (c, params) in candidates.iter().enumerate() {
+            env_of[t][c] = specs.len();
+            slot_of_env.push((c, t));
+            specs.push(EnvSpec {
+                placement: targets[t].placement,
                 params: *params,
-                object_mass_kg: t.object_mass_kg,
-                trajectory: t.tool.clone(),
-            })
-        })
-        .collect();
+                object_mass_kg: targets[t].object_mass_kg,
+                trajectory: targets[t].tool.clone(),
+            });
+        }
+    }
     let mut sim = Simulator::new(model.clone(), specs)?;
-    // Placement depends on the target only: embed once per target (candidate 0's environment).
+    // Placement depends on the target only: embed once per target.
     let embeddings: Vec<SurfaceEmbedding> = (0..n_targets)
-        .map(|t| sim.embed(t, &targets[t].initial_markers))
+        .map(|t| sim.embed(env_of[t][0], &targets[t].initial_markers))
         .collect();
     let rest = model.config.cups.rest_time_s as f64;
     let dt = sim.dt() as f64;
@@ -258,7 +282,7 @@ pub fn rollout(
     checkpoints.dedup();
     let total = checkpoints.last().copied().unwrap_or(0);
 
-    let mut outcomes: Vec<Vec<RolloutOutcome>> = (0..candidates.len())
+    let mut outcomes: Vec<Vec<RolloutOutcome>> = (0..n_candidates)
         .map(|_| {
             targets
                 .iter()
@@ -279,7 +303,7 @@ pub fn rollout(
             }
             next_frame[t] += 1;
             for (c, per_target) in outcomes.iter_mut().enumerate() {
-                let env = c * n_targets + t;
+                let env = env_of[t][c];
                 if sim.is_frozen(env) {
                     continue;
                 }
@@ -306,15 +330,18 @@ pub fn rollout(
                     simulator: &sim,
                     env,
                 });
+                if next_frame[t] == frame_substeps[t].len() {
+                    sim.retire(env)?;
+                }
             }
         }
         observer.progress(substep, total);
         if (0..sim.num_envs()).all(|env| sim.is_frozen(env)) {
-            break; // every environment diverged: nothing left to compare
+            break; // every environment finished or diverged
         }
     }
     for event in sim.health_events() {
-        let (c, t) = (event.env / n_targets, event.env % n_targets);
+        let (c, t) = slot_of_env[event.env];
         outcomes[c][t].diverged.get_or_insert(*event);
     }
     Ok(outcomes)
@@ -362,7 +389,7 @@ impl SimObjective {
     ) -> Result<Self, ObjectiveError> {
         let targets = trajectories
             .iter()
-            .map(|t| Target::new(t, max_seconds))
+            .map(|t| Target::new(t, max_seconds, scene.disc.hold_at_recorded_start))
             .collect::<Result<Vec<_>, _>>()?;
         Self::from_targets(scene, names, targets, weights)
     }
@@ -480,7 +507,7 @@ mod tests {
                 self.object.push(o.disc.position.map(|v| v as f64));
             }
         }
-        let target = Target::new(base, Some(seconds)).unwrap();
+        let target = Target::new(base, Some(seconds), false).unwrap();
         let mut rec = Recorder {
             markers: Vec::new(),
             object: Vec::new(),
@@ -537,6 +564,37 @@ mod tests {
         assert!(
             (found / 2.0e4).log10().abs() < 0.1,
             "recovered k_tri_e = {found} (true 2e4), {best:?}"
+        );
+    }
+
+    #[test]
+    fn batched_ragged_rollout_matches_single_rollouts() {
+        // Two trajectories of different lengths x two candidates, one with a held disc: the batch
+        // (target-major layout, finished environments retired) must give each pair's result.
+        let mut scene = load_scene("reference", Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        let model = Arc::new(Model::new(&scene).unwrap());
+        let targets = vec![
+            Target::new(&recorded("HHLHL"), Some(0.15), true).unwrap(),
+            Target::new(&recorded("HHHHH"), Some(0.05), false).unwrap(),
+        ];
+        let mut stiff = scene.params;
+        stiff.k_tri_e *= 3.0;
+        let candidates = [scene.params, stiff];
+        let batch = rollout(&model, &targets, &candidates, &mut ()).unwrap();
+        for (c, params) in candidates.iter().enumerate() {
+            for (t, target) in targets.iter().enumerate() {
+                let alone =
+                    rollout(&model, std::slice::from_ref(target), &[*params], &mut ()).unwrap();
+                let (a, b) = (&alone[0][0].loss, &batch[c][t].loss);
+                assert_eq!(a.frames.len(), target.times.len());
+                assert_eq!(a.frames, b.frames, "candidate {c}, target {t}");
+            }
+        }
+        // The two candidates really differ.
+        assert_ne!(
+            batch[0][0].loss.mean_chamfer(),
+            batch[1][0].loss.mean_chamfer()
         );
     }
 

@@ -76,6 +76,7 @@ pub fn bench_simulator(
             package_origin: origin,
             cup_point,
             disc_position: centre,
+            disc_hold: None,
         },
         params: config.params,
         object_mass_kg: 0.57,

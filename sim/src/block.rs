@@ -118,6 +118,8 @@ pub(crate) struct Block<const W: usize> {
     springs: Vec<LaneSpring<W>>,
     pub(crate) disc: LaneDisc<W>,
     disc_x0: V3<L<W>>,
+    /// Per lane: where the disc is held during the rest (`None`: free), see `Placement::disc_hold`.
+    disc_hold: [Option<[f32; 3]>; W],
     /// Per particle: frozen contact point on the disc (body frame) and normal (world).
     contact_point: Vec<V3<L<W>>>,
     contact_normal: Vec<V3<L<W>>>,
@@ -220,6 +222,7 @@ impl<const W: usize> Block<W> {
                 w: zero3,
             },
             disc_x0: zero3,
+            disc_hold: [None; W],
             contact_point: vec![zero3; n],
             contact_normal: vec![zero3; n],
             params: LaneParams {
@@ -311,6 +314,7 @@ impl<const W: usize> Block<W> {
         }
         set3(&mut self.disc.com, l, pl.disc_position);
         set3(&mut self.disc_x0, l, pl.disc_position);
+        self.disc_hold[l] = pl.disc_hold;
         set3(&mut self.disc.q.v, l, [0.0; 3]);
         self.disc.q.w.0[l] = 1.0;
         set3(&mut self.disc.v, l, [0.0; 3]);
@@ -343,6 +347,15 @@ impl<const W: usize> Block<W> {
             + self.cup_offsets.capacity() * per_particle
             + self.springs.capacity() * std::mem::size_of::<LaneSpring<W>>()
             + std::mem::size_of::<Self>()
+    }
+
+    /// Stops stepping every lane holding `env`; its state stays as it is.
+    pub(crate) fn retire(&mut self, env: usize) {
+        for l in 0..W {
+            if self.envs[l] == env {
+                self.active.0[l] = 0.0;
+            }
+        }
     }
 
     /// Replaces the material parameters of every lane holding `env`.
@@ -396,6 +409,41 @@ impl<const W: usize> Block<W> {
         (p, q, vel)
     }
 
+    /// The disc centre and velocity at time `t` for lanes whose disc is held during the rest
+    /// (`Placement::disc_hold`): a smooth path from the start to the hold point over the first half
+    /// of the rest, then still. Other lanes, and every lane after the rest, keep `com`, `v`.
+    fn held_disc(
+        &self,
+        t: f64,
+        rest_time: f64,
+        mut com: V3<L<W>>,
+        mut v: V3<L<W>>,
+    ) -> (V3<L<W>>, V3<L<W>>) {
+        if t > rest_time {
+            return (com, v);
+        }
+        let travel = 0.5 * rest_time;
+        let u = (t / travel).min(1.0);
+        // Smoothstep: zero velocity at both ends of the path.
+        let shape = u * u * (3.0 - 2.0 * u);
+        let rate = if u < 1.0 {
+            6.0 * u * (1.0 - u) / travel
+        } else {
+            0.0
+        };
+        for l in 0..W {
+            if let Some(target) = self.disc_hold[l] {
+                let start = get3(&self.disc_x0, l);
+                let at =
+                    |c: usize| (start[c] as f64 + (target[c] - start[c]) as f64 * shape) as f32;
+                let speed = |c: usize| ((target[c] - start[c]) as f64 * rate) as f32;
+                set3(&mut com, l, [at(0), at(1), at(2)]);
+                set3(&mut v, l, [speed(0), speed(1), speed(2)]);
+            }
+        }
+        (com, v)
+    }
+
     /// Advances `substeps` substeps starting at global substep `start`.
     #[inline(always)]
     pub(crate) fn advance(
@@ -406,6 +454,10 @@ impl<const W: usize> Block<W> {
         substeps: u64,
         parallel: bool,
     ) {
+        // A block whose environments are all frozen or retired would only copy its state over.
+        if (0..W).all(|l| !self.real[l] || self.active.0[l] < 0.5) {
+            return;
+        }
         for s in start..start + substeps {
             self.substep(model, k, s, parallel);
             if (s + 1).is_multiple_of(k.check_every) {
@@ -484,6 +536,7 @@ impl<const W: usize> Block<W> {
         }
         .normalize();
         let w1 = w1 * (L::splat(1.0) - L::splat(k.angular_damping) * dt);
+        let (com1, v1) = self.held_disc(t + k.dt64, k.rest_time, com1, v1);
         self.disc = LaneDisc {
             com: keep(com1, disc.com),
             q: Quat {

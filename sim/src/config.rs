@@ -192,6 +192,12 @@ pub struct DiscConfig {
     /// every this many substeps and frozen in between, as Warp's once-per-frame `collide()`
     /// (reference 512). 1 recomputes the analytic closest point every substep.
     pub contact_refresh_substeps: u32,
+    /// When a recording is replayed, hold the disc at the recorded object's start position during
+    /// the rest period and release it at trajectory time 0 (`Placement::disc_hold`), so the replay
+    /// starts where the recording does. False (the reference's rule): the disc is free from the
+    /// start and slides to wherever the sagging package lets it rest.
+    #[serde(default)]
+    pub hold_at_recorded_start: bool,
 }
 
 /// Contact materials other than the calibrated disc parameters.

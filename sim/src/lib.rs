@@ -58,6 +58,10 @@
 //! * The tool trajectory is interpolated linearly (nlerp for orientations) at its own timestamps;
 //!   the reference uses a cubic spline on a slightly stretched time base.
 //! * Health checks freeze an environment whose state is non-finite or exploding.
+//! * Optionally ([`Placement::disc_hold`], `disc.hold_at_recorded_start`) the disc is carried to
+//!   the recorded object's start during the rest and released at trajectory time 0. The reference
+//!   lets it slide freely during the rest; in its scene the disc then starts a replay 3-4 cm from
+//!   where the recording has it, and that offset persists through the whole trajectory.
 //!
 //! # Determinism
 //! Each environment's arithmetic is independent of the others and of the thread count: lanes never

@@ -190,6 +190,19 @@ impl Simulator {
         self.events.extend(fresh);
     }
 
+    /// Stops stepping `env` (e.g. its recording has ended): its state stays as it is, it counts as
+    /// frozen, and no health event is recorded. A block whose environments are all frozen or
+    /// retired costs nothing, so retiring finished environments makes ragged batches cheap.
+    /// [`Simulator::reset`] brings it back.
+    pub fn retire(&mut self, env: usize) -> Result<(), SimError> {
+        self.check_env(env)?;
+        match &mut self.blocks {
+            Blocks::Wide(blocks) => blocks[env / LANES].retire(env),
+            Blocks::Single(blocks) => blocks[env].retire(env),
+        }
+        Ok(())
+    }
+
     /// Replaces one environment's material parameters (takes effect at the next substep).
     pub fn set_params(&mut self, env: usize, params: Params) -> Result<(), SimError> {
         self.check_env(env)?;
@@ -401,6 +414,7 @@ mod tests {
                 package_origin: [0.0, 0.3, 0.0],
                 cup_point,
                 disc_position: centre,
+                disc_hold: None,
             },
             params: config.params,
             object_mass_kg: 0.57,
@@ -576,6 +590,42 @@ mod tests {
     }
 
     #[test]
+    fn held_disc_reaches_its_hold_point_then_is_released() {
+        let mut c = coarse("reference", [11, 13]);
+        c.cups.rest_time_s = 0.4;
+        let model = Arc::new(Model::new(&c).unwrap());
+        let free = spec(&c, 0.01, None);
+        let start = free.placement.disc_position;
+        let target = [start[0] + 0.02, start[1] - 0.03, start[2] - 0.01];
+        let mut held = free.clone();
+        held.placement = held.placement.holding_disc_at(target);
+        let mut sim = Simulator::new(model, vec![free, held]).unwrap();
+        let dt = sim.dt() as f64;
+        let steps = |s: f64| (s / dt).round() as u64;
+        // Half-way through the travel (a quarter of the rest), the smooth path is half-way too.
+        sim.step(steps(0.1));
+        let mid = sim.disc(1).position;
+        for c in 0..3 {
+            let expected = 0.5 * (start[c] + target[c]);
+            assert!((mid[c] - expected).abs() < 1e-4, "{mid:?} vs {expected}");
+        }
+        sim.step(steps(0.3));
+        let end = sim.disc(1);
+        for c in 0..3 {
+            assert!((end.position[c] - target[c]).abs() < 1e-6, "{end:?}");
+            assert_eq!(end.velocity[c], 0.0);
+        }
+        // The free disc of environment 0 went its own way; after the rest the held one moves
+        // under the package's forces (it was not at the package's equilibrium).
+        assert!((sim.disc(0).position[1] - target[1]).abs() > 1e-3);
+        sim.step(steps(0.05));
+        let released = sim.disc(1);
+        let speed = released.velocity.iter().map(|v| v * v).sum::<f32>().sqrt();
+        assert!(speed > 1e-2, "{released:?}");
+        assert!(sim.health_events().is_empty());
+    }
+
+    #[test]
     fn physical_preset_is_stable_on_coarse_and_fine_grids() {
         for grid in [[11, 13], [26, 31]] {
             let c = coarse("physical", grid);
@@ -678,6 +728,36 @@ mod tests {
         assert_eq!(snapshot(&sim, 2), initial);
         sim.step(40);
         assert_eq!(snapshot(&sim, 2), after_40);
+    }
+
+    #[test]
+    fn retired_envs_stay_put_and_spare_the_others() {
+        let c = coarse("reference", [6, 7]);
+        let model = Arc::new(Model::new(&c).unwrap());
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let specs: Vec<EnvSpec> = (0..2 * LANES).map(|_| perturbed(&c, &mut rng)).collect();
+        let mut all = Simulator::new(model.clone(), specs.clone()).unwrap();
+        let mut some = Simulator::new(model, specs).unwrap();
+        all.step(30);
+        some.step(30);
+        // Retire the whole first block and one environment of the second.
+        let retired: Vec<usize> = (0..LANES).chain([LANES + 3]).collect();
+        let before: Vec<Vec<u32>> = retired.iter().map(|&e| snapshot(&some, e)).collect();
+        for &e in &retired {
+            some.retire(e).unwrap();
+        }
+        all.step(50);
+        some.step(50);
+        for (i, &e) in retired.iter().enumerate() {
+            assert!(some.is_frozen(e));
+            assert_eq!(snapshot(&some, e), before[i], "retired env {e} moved");
+        }
+        for e in (LANES..2 * LANES).filter(|e| !retired.contains(e)) {
+            assert!(!some.is_frozen(e));
+            assert_eq!(snapshot(&some, e), snapshot(&all, e), "env {e} changed");
+        }
+        assert!(some.health_events().is_empty());
+        assert!(some.retire(2 * LANES).is_err());
     }
 
     #[test]

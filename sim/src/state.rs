@@ -18,6 +18,13 @@ pub struct Placement {
     pub cup_point: [f32; 3],
     /// Initial disc centre (orientation is the identity: disc axis along world y).
     pub disc_position: [f32; 3],
+    /// Where the disc is held during the rest period, if anywhere. The disc centre is moved
+    /// kinematically from `disc_position` to this point over the first half of the rest, held
+    /// there for the second half while the package settles around it, and released (at zero
+    /// velocity) at trajectory time 0; its rotation stays free throughout. `None`: the disc is
+    /// free from the start (the reference's rule), and it slides to wherever the sagging package
+    /// lets it rest.
+    pub disc_hold: Option<[f32; 3]>,
 }
 
 impl Placement {
@@ -47,7 +54,18 @@ impl Placement {
             package_origin: [min_x, mean_y, min_z],
             cup_point,
             disc_position: [object_position[0], mean_y, object_position[2]],
+            disc_hold: None,
         })
+    }
+
+    /// This placement with the disc held at `target` during the rest period (see
+    /// [`Placement::disc_hold`]): the recorded start of a trajectory, so a replay begins where the
+    /// recording does.
+    pub fn holding_disc_at(self, target: [f32; 3]) -> Self {
+        Placement {
+            disc_hold: Some(target),
+            ..self
+        }
     }
 }
 

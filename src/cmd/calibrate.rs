@@ -66,8 +66,11 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         .iter()
         .map(|id| dataset.load(id).map_err(input_error))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let scene = load_scene(&config.sim.preset, Some(config.sim.between), config.sim.dt)
+    let mut scene = load_scene(&config.sim.preset, Some(config.sim.between), config.sim.dt)
         .map_err(|e| input_error(format!("{} (sim.preset of {})", e, args.config.display())))?;
+    if let Some(hold) = config.sim.hold_disc {
+        scene.disc.hold_at_recorded_start = hold;
+    }
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let space = config.space();
 

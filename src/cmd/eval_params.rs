@@ -127,7 +127,7 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
 
     let targets = selected
         .iter()
-        .map(|(_, t)| Target::new(t, None).map_err(input_error))
+        .map(|(_, t)| Target::new(t, None, scene.disc.hold_at_recorded_start).map_err(input_error))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let model = Arc::new(Model::new(&scene).map_err(input_error)?);
     let weights = LossWeights::default();
