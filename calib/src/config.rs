@@ -319,6 +319,25 @@ upper = 2.0
     }
 
     #[test]
+    fn shipped_configs_are_valid() {
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let first = CalibrateConfig::load(&configs.join("calibrate.toml")).unwrap();
+        let refine = CalibrateConfig::load(&configs.join("calibrate-refine.toml")).unwrap();
+        // The second stage starts from the first stage's output.
+        assert_eq!(
+            Path::new(&refine.sim.preset),
+            first.out_dir.join("calibrated.toml")
+        );
+        assert_eq!(first.space().names(), refine.space().names());
+        let shipped = rlpkg_sim::SceneConfig::load(&configs.join("calibrated.toml")).unwrap();
+        assert!(shipped.disc.hold_at_recorded_start);
+        assert_eq!(
+            shipped.package.grid,
+            [6 + 5 * first.sim.between, 7 + 6 * first.sim.between]
+        );
+    }
+
+    #[test]
     fn errors_name_file_key_and_expectation() {
         let cases = [
             (
