@@ -227,7 +227,12 @@ impl BayesOpt {
                 .iter()
                 .map(|xi| current.predict(xi).0)
                 .fold(f64::INFINITY, f64::min);
+            // The objective is deterministic: a point next to one already evaluated or chosen
+            // would be wasted (a GP with a learned noise term still rates it highly).
             let score = |u: &[f64]| {
+                if x.iter().any(|xi| distance(xi, u) < MIN_SEPARATION) {
+                    return f64::NEG_INFINITY;
+                }
                 let (m, v) = current.predict(u);
                 acquisition_value(self.settings.acquisition, m, v.sqrt(), incumbent, y_std)
             };
@@ -239,6 +244,17 @@ impl BayesOpt {
         }
         Ok(batch)
     }
+}
+
+/// Smallest distance (unit cube) between a new candidate and any evaluated or chosen point.
+const MIN_SEPARATION: f64 = 0.02;
+
+fn distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q) * (p - q))
+        .sum::<f64>()
+        .sqrt()
 }
 
 /// Acquisition value to maximise, for posterior mean `m` and standard deviation `s`.
@@ -460,6 +476,41 @@ mod tests {
         let bo = run_bo(5, 24, Acquisition::ConfidenceBound { kappa: 2.0 });
         let best = bo.best().unwrap().value;
         assert!(best < 0.397887 + 0.5, "UCB best {best}");
+    }
+
+    #[test]
+    fn batch_candidates_are_distinct_even_at_a_bound() {
+        // A rough objective whose minimum lies at the upper bound: the GP learns a noise term, and
+        // without a separation rule the believer batch piles up at the bound.
+        let space = ParamSpace::new(vec![ParamSpec {
+            name: "x".into(),
+            lower: 0.0,
+            upper: 1.0,
+            log: false,
+        }])
+        .unwrap();
+        let settings = BoSettings {
+            initial_points: 8,
+            batch_size: 4,
+            random_candidates: 200,
+            seed: 2,
+            ..BoSettings::default()
+        };
+        let mut bo = BayesOpt::new(space, settings);
+        for k in 0..8 {
+            let x = k as f64 / 8.0 + 0.03;
+            let rough = 0.2 * ((k * 7919 % 13) as f64 / 13.0 - 0.5);
+            bo.tell(vec![x], -x + rough).unwrap();
+        }
+        let batch = bo.ask().unwrap();
+        let mut points: Vec<f64> = bo.observations().iter().map(|o| o.params[0]).collect();
+        for p in &batch {
+            assert!(
+                points.iter().all(|q| (p[0] - q).abs() >= MIN_SEPARATION),
+                "{p:?} repeats a point of {points:?}"
+            );
+            points.push(p[0]);
+        }
     }
 
     #[test]

@@ -11,10 +11,24 @@ use crate::bo::{Acquisition, BoSettings};
 use crate::loss::LossWeights;
 use crate::space::{ParamSpace, ParamSpec};
 
-/// Simulator parameter names that can be calibrated (the paper's names, plus Warp's friction `k_con_f`).
-pub const PARAMETER_NAMES: [&str; 14] = [
-    "k_tri_e", "k_tri_a", "k_tri_d", "k_edge_e", "k_edge_d", "k_cup_e", "k_cup_a", "k_cup_d",
-    "k_spr_e", "k_spr_d", "k_con_e", "k_con_d", "k_con_f", "mu_con",
+/// Simulator parameter names that can be calibrated: the paper's names, Warp's friction `k_con_f`,
+/// and `disc_mass_scale` (the scene's `disc.mass_scale`, simulated disc kg per recorded kg).
+pub const PARAMETER_NAMES: [&str; 15] = [
+    "k_tri_e",
+    "k_tri_a",
+    "k_tri_d",
+    "k_edge_e",
+    "k_edge_d",
+    "k_cup_e",
+    "k_cup_a",
+    "k_cup_d",
+    "k_spr_e",
+    "k_spr_d",
+    "k_con_e",
+    "k_con_d",
+    "k_con_f",
+    "mu_con",
+    "disc_mass_scale",
 ];
 
 /// A configuration error: file, key and what was expected.
@@ -323,12 +337,23 @@ upper = 2.0
         let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
         let first = CalibrateConfig::load(&configs.join("calibrate.toml")).unwrap();
         let refine = CalibrateConfig::load(&configs.join("calibrate-refine.toml")).unwrap();
-        // The second stage starts from the first stage's output.
+        let whole = CalibrateConfig::load(&configs.join("calibrate-whole.toml")).unwrap();
+        // Each stage starts from the previous stage's output.
         assert_eq!(
             Path::new(&refine.sim.preset),
             first.out_dir.join("calibrated.toml")
         );
+        assert_eq!(
+            Path::new(&whole.sim.preset),
+            refine.out_dir.join("calibrated.toml")
+        );
         assert_eq!(first.space().names(), refine.space().names());
+        // The third stage fits the disc's mass scale and contact on whole trajectories.
+        assert_eq!(
+            whole.space().names(),
+            ["disc_mass_scale", "k_con_e", "k_con_d", "mu_con"]
+        );
+        assert_eq!(whole.sim.max_seconds, None);
         let shipped = rlpkg_sim::SceneConfig::load(&configs.join("calibrated.toml")).unwrap();
         assert!(shipped.disc.hold_at_recorded_start);
         assert_eq!(

@@ -2,26 +2,27 @@
 //! Fig. 10), the sensitivity perturbation (every calibrated value scaled up by a percentage, as the
 //! study's `eval`), and the real-time factor of a rollout (Table 2).
 
-use rlpkg_sim::Params;
+use crate::objective::{get_param, set_param, Candidate};
 
 use crate::loss::squared_distance;
 
 /// The values the study scales in its sensitivity evaluation: the 9 calibrated ones plus the
-/// attachment springs (reference-model §10).
+/// attachment springs (reference-model §10). The disc mass scale is a scene quantity and is not
+/// perturbed.
 pub const PERTURBED_PARAMETERS: [&str; 11] = [
     "k_tri_e", "k_tri_a", "k_tri_d", "k_edge_e", "k_edge_d", "k_con_e", "k_con_d", "k_con_f",
     "mu_con", "k_spr_e", "k_spr_d",
 ];
 
-/// `params` with every [`PERTURBED_PARAMETERS`] value multiplied by `1 + percent / 100`.
-pub fn perturbed(params: &Params, percent: f64) -> Params {
-    let mut p = *params;
+/// `candidate` with every [`PERTURBED_PARAMETERS`] value multiplied by `1 + percent / 100`.
+pub fn perturbed(candidate: &Candidate, percent: f64) -> Candidate {
+    let mut c = *candidate;
     let factor = 1.0 + percent / 100.0;
     for name in PERTURBED_PARAMETERS {
-        let value = crate::objective::get_param(&p, name).expect("known name");
-        crate::objective::set_param(&mut p, name, value * factor).expect("known name");
+        let value = get_param(&c, name).expect("known name");
+        set_param(&mut c, name, value * factor).expect("known name");
     }
-    p
+    c
 }
 
 /// Per simulated marker site: mean over frames of the distance to the nearest recorded marker.
@@ -79,13 +80,15 @@ mod tests {
 
     #[test]
     fn perturbation_scales_the_studys_values_only() {
-        let base = SceneConfig::preset("reference").unwrap().params;
-        let p = perturbed(&base, 20.0);
-        assert!((p.k_tri_e / base.k_tri_e - 1.2).abs() < 1e-6);
-        assert!((p.mu_con / base.mu_con - 1.2).abs() < 1e-6);
-        assert!((p.k_spr_d / base.k_spr_d - 1.2).abs() < 1e-6);
-        // The cup shell is not part of the study's perturbation.
-        assert_eq!(p.k_cup_e, base.k_cup_e);
+        let base = Candidate::of_scene(&SceneConfig::preset("reference").unwrap());
+        let c = perturbed(&base, 20.0);
+        let (p, b) = (&c.params, &base.params);
+        assert!((p.k_tri_e / b.k_tri_e - 1.2).abs() < 1e-6);
+        assert!((p.mu_con / b.mu_con - 1.2).abs() < 1e-6);
+        assert!((p.k_spr_d / b.k_spr_d - 1.2).abs() < 1e-6);
+        // The cup shell and the disc mass are not part of the study's perturbation.
+        assert_eq!(p.k_cup_e, b.k_cup_e);
+        assert_eq!(c.disc_mass_scale, base.disc_mass_scale);
         assert_eq!(perturbed(&base, 0.0), base);
     }
 

@@ -45,8 +45,37 @@ pub enum ObjectiveError {
     UnknownParameter(String),
 }
 
-/// Sets the parameter called `name` (the paper's names, see [`crate::config::PARAMETER_NAMES`]).
-pub fn set_param(params: &mut Params, name: &str, value: f64) -> Result<(), ObjectiveError> {
+/// What one calibration candidate sets in every environment it is simulated in: the material
+/// parameters and the disc's mass scale (simulated disc kg per recorded kg, the scene's
+/// `disc.mass_scale`). The reference's package particles weigh far more than the scaled disc, so
+/// how deep the disc sags the film is a quantity worth fitting.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Candidate {
+    /// Material parameters.
+    pub params: Params,
+    /// Simulated disc mass per recorded kg (the scene's `disc.mass_scale`).
+    pub disc_mass_scale: f32,
+}
+
+impl Candidate {
+    /// The scene's own parameters and disc mass scale.
+    pub fn of_scene(scene: &SceneConfig) -> Self {
+        Self {
+            params: scene.params,
+            disc_mass_scale: scene.disc.mass_scale,
+        }
+    }
+
+    /// Writes this candidate's values into `scene`.
+    pub fn apply_to(&self, scene: &mut SceneConfig) {
+        scene.params = self.params;
+        scene.disc.mass_scale = self.disc_mass_scale;
+    }
+}
+
+/// Sets the parameter called `name` (see [`crate::config::PARAMETER_NAMES`]).
+pub fn set_param(candidate: &mut Candidate, name: &str, value: f64) -> Result<(), ObjectiveError> {
+    let params = &mut candidate.params;
     let slot = match name {
         "k_tri_e" => &mut params.k_tri_e,
         "k_tri_a" => &mut params.k_tri_a,
@@ -62,6 +91,7 @@ pub fn set_param(params: &mut Params, name: &str, value: f64) -> Result<(), Obje
         "k_con_d" => &mut params.k_con_d,
         "k_con_f" => &mut params.k_con_f,
         "mu_con" => &mut params.mu_con,
+        "disc_mass_scale" => &mut candidate.disc_mass_scale,
         other => return Err(ObjectiveError::UnknownParameter(other.to_string())),
     };
     *slot = value as f32;
@@ -69,8 +99,12 @@ pub fn set_param(params: &mut Params, name: &str, value: f64) -> Result<(), Obje
 }
 
 /// The value of the parameter called `name`.
-pub fn get_param(params: &Params, name: &str) -> Result<f64, ObjectiveError> {
-    params
+pub fn get_param(candidate: &Candidate, name: &str) -> Result<f64, ObjectiveError> {
+    if name == "disc_mass_scale" {
+        return Ok(candidate.disc_mass_scale as f64);
+    }
+    candidate
+        .params
         .entries()
         .iter()
         .find(|e| e.0 == name)
@@ -237,7 +271,7 @@ pub struct RolloutOutcome {
 pub fn rollout(
     model: &Arc<Model>,
     targets: &[Target],
-    candidates: &[Params],
+    candidates: &[Candidate],
     observer: &mut dyn Observer,
 ) -> Result<Vec<Vec<RolloutOutcome>>, ObjectiveError> {
     let n_targets = targets.len();
@@ -249,13 +283,16 @@ pub fn rollout(
     let mut slot_of_env = Vec::with_capacity(n_targets * n_candidates);
     let mut specs = Vec::with_capacity(n_targets * n_candidates);
     for &t in &by_length {
-        for (c, params) in candidates.iter().enumerate() {
+        for (c, candidate) in candidates.iter().enumerate() {
             env_of[t][c] = specs.len();
             slot_of_env.push((c, t));
+            // The model scales the recorded mass by the scene's `disc.mass_scale`; rescale so the
+            // simulated disc weighs `candidate.disc_mass_scale` x the recorded mass.
+            let mass_factor = candidate.disc_mass_scale / model.config.disc.mass_scale;
             specs.push(EnvSpec {
                 placement: targets[t].placement,
-                params: *params,
-                object_mass_kg: targets[t].object_mass_kg,
+                params: candidate.params,
+                object_mass_kg: targets[t].object_mass_kg * mass_factor,
                 trajectory: targets[t].tool.clone(),
             });
         }
@@ -371,7 +408,7 @@ pub fn summarise(outcomes: &[RolloutOutcome], weights: &LossWeights) -> Candidat
 /// fixed set of recorded trajectories.
 pub struct SimObjective {
     model: Arc<Model>,
-    base: Params,
+    base: Candidate,
     names: Vec<String>,
     targets: Vec<Target>,
     weights: LossWeights,
@@ -401,12 +438,13 @@ impl SimObjective {
         targets: Vec<Target>,
         weights: LossWeights,
     ) -> Result<Self, ObjectiveError> {
+        let base = Candidate::of_scene(scene);
         for name in &names {
-            get_param(&scene.params, name)?;
+            get_param(&base, name)?;
         }
         Ok(Self {
             model: Arc::new(Model::new(scene)?),
-            base: scene.params,
+            base,
             names,
             targets,
             weights,
@@ -433,8 +471,8 @@ impl SimObjective {
         &self.targets
     }
 
-    /// Base parameters with the calibrated ones replaced by `values`.
-    pub fn params_for(&self, values: &[f64]) -> Params {
+    /// The base candidate with the calibrated parameters replaced by `values`.
+    pub fn candidate_for(&self, values: &[f64]) -> Candidate {
         let mut p = self.base;
         for (name, &v) in self.names.iter().zip(values) {
             set_param(&mut p, name, v).expect("checked in new");
@@ -444,18 +482,20 @@ impl SimObjective {
 
     /// The scene with calibrated parameters applied (to write as `calibrated.toml`).
     pub fn calibrated_scene(&self, best: &CalibratedParams) -> Result<SceneConfig, ObjectiveError> {
-        let mut scene = self.model.config.clone();
+        let mut candidate = self.base;
         for (name, &v) in &best.params {
-            set_param(&mut scene.params, name, v)?;
+            set_param(&mut candidate, name, v)?;
         }
+        let mut scene = self.model.config.clone();
+        candidate.apply_to(&mut scene);
         Ok(scene)
     }
 }
 
 impl BatchObjective for SimObjective {
     fn evaluate(&mut self, candidates: &[Vec<f64>]) -> Result<Vec<CandidateResult>, String> {
-        let params: Vec<Params> = candidates.iter().map(|c| self.params_for(c)).collect();
-        let outcomes = rollout(&self.model, &self.targets, &params, self.observer.as_mut())
+        let batch: Vec<Candidate> = candidates.iter().map(|c| self.candidate_for(c)).collect();
+        let outcomes = rollout(&self.model, &self.targets, &batch, self.observer.as_mut())
             .map_err(|e| e.to_string())?;
         Ok(outcomes
             .iter()
@@ -470,7 +510,7 @@ mod tests {
 
     #[test]
     fn parameters_by_name_round_trip() {
-        let mut p = SceneConfig::preset("reference").unwrap().params;
+        let mut p = Candidate::of_scene(&SceneConfig::preset("reference").unwrap());
         for (i, name) in crate::config::PARAMETER_NAMES.iter().enumerate() {
             set_param(&mut p, name, 1.5 + i as f64).unwrap();
         }
@@ -488,13 +528,13 @@ mod tests {
         rlpkg_mocap::Dataset::open(&root).unwrap().load(id).unwrap()
     }
 
-    /// Records what the simulator does with `params` as if it were motion capture: the marker
+    /// Records what the simulator does with `candidate` as if it were motion capture: the marker
     /// sites (embedded row-0 markers) as the markers of each frame and the disc as the object.
     /// The placement stays the recording's.
     fn synthetic_target(
         model: &Arc<Model>,
         base: &Trajectory,
-        params: Params,
+        candidate: Candidate,
         seconds: f64,
     ) -> Target {
         struct Recorder {
@@ -512,7 +552,7 @@ mod tests {
             markers: Vec::new(),
             object: Vec::new(),
         };
-        let out = rollout(model, std::slice::from_ref(&target), &[params], &mut rec).unwrap();
+        let out = rollout(model, std::slice::from_ref(&target), &[candidate], &mut rec).unwrap();
         assert!(out[0][0].diverged.is_none());
         assert_eq!(rec.markers.len(), target.times.len());
         Target {
@@ -528,8 +568,8 @@ mod tests {
         let mut scene = load_scene("reference", Some(0), None).unwrap();
         scene.cups.rest_time_s = 0.1;
         let model = Arc::new(Model::new(&scene).unwrap());
-        let mut truth = scene.params;
-        truth.k_tri_e = 2.0e4;
+        let mut truth = Candidate::of_scene(&scene);
+        truth.params.k_tri_e = 2.0e4;
         let data = synthetic_target(&model, &recorded("HHHHH"), truth, 0.2);
 
         let names = vec!["k_tri_e".to_string()];
@@ -578,14 +618,15 @@ mod tests {
             Target::new(&recorded("HHLHL"), Some(0.15), true).unwrap(),
             Target::new(&recorded("HHHHH"), Some(0.05), false).unwrap(),
         ];
-        let mut stiff = scene.params;
-        stiff.k_tri_e *= 3.0;
-        let candidates = [scene.params, stiff];
+        let base = Candidate::of_scene(&scene);
+        let mut stiff = base;
+        stiff.params.k_tri_e *= 3.0;
+        let candidates = [base, stiff];
         let batch = rollout(&model, &targets, &candidates, &mut ()).unwrap();
-        for (c, params) in candidates.iter().enumerate() {
+        for (c, candidate) in candidates.iter().enumerate() {
             for (t, target) in targets.iter().enumerate() {
                 let alone =
-                    rollout(&model, std::slice::from_ref(target), &[*params], &mut ()).unwrap();
+                    rollout(&model, std::slice::from_ref(target), &[*candidate], &mut ()).unwrap();
                 let (a, b) = (&alone[0][0].loss, &batch[c][t].loss);
                 assert_eq!(a.frames.len(), target.times.len());
                 assert_eq!(a.frames, b.frames, "candidate {c}, target {t}");
@@ -595,6 +636,39 @@ mod tests {
         assert_ne!(
             batch[0][0].loss.mean_chamfer(),
             batch[1][0].loss.mean_chamfer()
+        );
+    }
+
+    #[test]
+    fn candidate_disc_mass_scale_acts_as_the_scenes() {
+        // A candidate with a heavier disc on a scene of mass scale 100 must behave as the scene
+        // with that mass scale, and differently from the lighter disc.
+        let mut scene = load_scene("reference", Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        let target = Target::new(&recorded("HHLHL"), Some(0.3), false).unwrap();
+        let run = |scene: &SceneConfig, candidate: Candidate| {
+            let model = Arc::new(Model::new(scene).unwrap());
+            let out =
+                rollout(&model, std::slice::from_ref(&target), &[candidate], &mut ()).unwrap();
+            out[0][0].loss.mean_object_sq()
+        };
+        let light = Candidate::of_scene(&scene);
+        let heavy = Candidate {
+            disc_mass_scale: 3.0 * light.disc_mass_scale,
+            ..light
+        };
+        let mut heavy_scene = scene.clone();
+        heavy.apply_to(&mut heavy_scene);
+        assert_eq!(heavy_scene.disc.mass_scale, 300.0);
+        let (by_candidate, by_scene) = (run(&scene, heavy), run(&heavy_scene, heavy));
+        assert!(
+            (by_candidate - by_scene).abs() <= 1e-6 * by_scene,
+            "{by_candidate} vs {by_scene}"
+        );
+        let light_mse = run(&scene, light);
+        assert!(
+            (light_mse - by_scene).abs() > 1e-3 * by_scene,
+            "{light_mse} vs {by_scene}"
         );
     }
 

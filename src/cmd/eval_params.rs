@@ -17,9 +17,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use plotters::prelude::*;
 use rlpkg_calib::evaluate::{perturbed, real_time_factor, SiteErrors};
 use rlpkg_calib::loss::{table1_text, LossWeights, Table1Row, TrajectoryLoss};
-use rlpkg_calib::objective::{rollout, FrameObservation, Observer, RolloutOutcome, Target};
+use rlpkg_calib::objective::{
+    rollout, Candidate, FrameObservation, Observer, RolloutOutcome, Target,
+};
 use rlpkg_mocap::{Dataset, Split, Trajectory};
-use rlpkg_sim::{Model, Params, SceneConfig};
+use rlpkg_sim::{Model, SceneConfig};
 use serde::Serialize;
 
 use crate::error::input_error;
@@ -135,7 +137,12 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
     // Main evaluation, with pictures.
     let mut observer = Pictures::new(&targets, model.num_package, "evaluating");
     let started = Instant::now();
-    let outcomes = rollout(&model, &targets, &[scene.params], &mut observer)?;
+    let outcomes = rollout(
+        &model,
+        &targets,
+        &[Candidate::of_scene(&scene)],
+        &mut observer,
+    )?;
     let wall_s = started.elapsed().as_secs_f64();
     observer.progress.bar.finish_and_clear();
     let outcomes = &outcomes[0];
@@ -175,7 +182,13 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
     let perturb = if args.perturb.is_empty() {
         Vec::new()
     } else {
-        sensitivity(&model, &scene.params, &targets, &args.perturb, &weights)?
+        sensitivity(
+            &model,
+            &Candidate::of_scene(&scene),
+            &targets,
+            &args.perturb,
+            &weights,
+        )?
     };
 
     let summary = Summary {
@@ -269,7 +282,7 @@ fn sweep(
         let model = Arc::new(Model::new(&s).map_err(input_error)?);
         let mut bar = Progress::new(&format!("grid {}x{}", s.package.grid[0], s.package.grid[1]));
         let started = Instant::now();
-        let outcomes = rollout(&model, targets, &[s.params], &mut bar)?;
+        let outcomes = rollout(&model, targets, &[Candidate::of_scene(&s)], &mut bar)?;
         let wall_s = started.elapsed().as_secs_f64();
         bar.bar.finish_and_clear();
         let (cd, mse) = pooled_means(&outcomes[0]);
@@ -288,14 +301,14 @@ fn sweep(
 /// The sensitivity table: all perturbations in one batched rollout.
 fn sensitivity(
     model: &Arc<Model>,
-    params: &Params,
+    base: &Candidate,
     targets: &[Target],
     percents: &[f64],
     weights: &LossWeights,
 ) -> anyhow::Result<Vec<PerturbRow>> {
     let mut all = vec![0.0];
     all.extend(percents.iter().copied().filter(|p| *p != 0.0));
-    let candidates: Vec<Params> = all.iter().map(|&p| perturbed(params, p)).collect();
+    let candidates: Vec<Candidate> = all.iter().map(|&p| perturbed(base, p)).collect();
     let mut bar = Progress::new("perturbations");
     let outcomes = rollout(model, targets, &candidates, &mut bar)?;
     bar.bar.finish_and_clear();
