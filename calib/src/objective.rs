@@ -73,10 +73,10 @@ impl Candidate {
     }
 }
 
-/// Sets the parameter called `name` (see [`crate::config::PARAMETER_NAMES`]).
-pub fn set_param(candidate: &mut Candidate, name: &str, value: f64) -> Result<(), ObjectiveError> {
+/// The slot of the parameter called `name` (see [`crate::config::PARAMETER_NAMES`]).
+fn slot<'a>(candidate: &'a mut Candidate, name: &str) -> Result<&'a mut f32, ObjectiveError> {
     let params = &mut candidate.params;
-    let slot = match name {
+    Ok(match name {
         "k_tri_e" => &mut params.k_tri_e,
         "k_tri_a" => &mut params.k_tri_a,
         "k_tri_d" => &mut params.k_tri_d,
@@ -93,23 +93,19 @@ pub fn set_param(candidate: &mut Candidate, name: &str, value: f64) -> Result<()
         "mu_con" => &mut params.mu_con,
         "disc_mass_scale" => &mut candidate.disc_mass_scale,
         other => return Err(ObjectiveError::UnknownParameter(other.to_string())),
-    };
-    *slot = value as f32;
+    })
+}
+
+/// Sets the parameter called `name` (see [`crate::config::PARAMETER_NAMES`]).
+pub fn set_param(candidate: &mut Candidate, name: &str, value: f64) -> Result<(), ObjectiveError> {
+    *slot(candidate, name)? = value as f32;
     Ok(())
 }
 
 /// The value of the parameter called `name`.
 pub fn get_param(candidate: &Candidate, name: &str) -> Result<f64, ObjectiveError> {
-    if name == "disc_mass_scale" {
-        return Ok(candidate.disc_mass_scale as f64);
-    }
-    candidate
-        .params
-        .entries()
-        .iter()
-        .find(|e| e.0 == name)
-        .map(|e| e.1 as f64)
-        .ok_or_else(|| ObjectiveError::UnknownParameter(name.to_string()))
+    let mut copy = *candidate;
+    Ok(*slot(&mut copy, name)? as f64)
 }
 
 /// Loads a simulator preset (`reference`, `physical`, or a scene TOML file), sets the grid to the
