@@ -282,13 +282,11 @@ pub fn rollout(
         for (c, candidate) in candidates.iter().enumerate() {
             env_of[t][c] = specs.len();
             slot_of_env.push((c, t));
-            // The model scales the recorded mass by the scene's `disc.mass_scale`; rescale so the
-            // simulated disc weighs `candidate.disc_mass_scale` x the recorded mass.
-            let mass_factor = candidate.disc_mass_scale / model.config.disc.mass_scale;
             specs.push(EnvSpec {
                 placement: targets[t].placement,
                 params: candidate.params,
-                object_mass_kg: targets[t].object_mass_kg * mass_factor,
+                object_mass_kg: targets[t].object_mass_kg,
+                disc_mass_scale: Some(candidate.disc_mass_scale),
                 trajectory: targets[t].tool.clone(),
             });
         }

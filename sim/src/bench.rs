@@ -72,14 +72,10 @@ pub fn bench_simulator(
         [0.0, 0.0, 0.0, 1.0],
     ));
     let spec = EnvSpec {
-        placement: Placement {
-            package_origin: origin,
-            cup_point,
-            disc_position: centre,
-            disc_hold: None,
-        },
+        placement: Placement::new(origin, cup_point, centre),
         params: config.params,
         object_mass_kg: 0.57,
+        disc_mass_scale: None,
         trajectory: tool,
     };
     Simulator::new(model, vec![spec; envs])

@@ -13,6 +13,12 @@ pub const REFERENCE_TOML: &str = include_str!("../../configs/reference.toml");
 /// Text of `configs/physical.toml`, embedded at build time.
 pub const PHYSICAL_TOML: &str = include_str!("../../configs/physical.toml");
 
+/// The names of the material parameters, in [`Params::entries`] order.
+pub const PARAM_NAMES: [&str; 14] = [
+    "k_tri_e", "k_tri_a", "k_tri_d", "k_edge_e", "k_edge_d", "k_cup_e", "k_cup_a", "k_cup_d",
+    "k_spr_e", "k_spr_d", "k_con_e", "k_con_d", "k_con_f", "mu_con",
+];
+
 /// Material parameters of one environment, named as in the paper.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -66,6 +72,27 @@ impl Params {
             ("k_con_f", self.k_con_f, 0.0, 1e8),
             ("mu_con", self.mu_con, 0.0, 100.0),
         ]
+    }
+
+    /// The parameter named `name` (as in [`Params::entries`]), for setting by name.
+    pub fn get_mut(&mut self, name: &str) -> Option<&mut f32> {
+        Some(match name {
+            "k_tri_e" => &mut self.k_tri_e,
+            "k_tri_a" => &mut self.k_tri_a,
+            "k_tri_d" => &mut self.k_tri_d,
+            "k_edge_e" => &mut self.k_edge_e,
+            "k_edge_d" => &mut self.k_edge_d,
+            "k_cup_e" => &mut self.k_cup_e,
+            "k_cup_a" => &mut self.k_cup_a,
+            "k_cup_d" => &mut self.k_cup_d,
+            "k_spr_e" => &mut self.k_spr_e,
+            "k_spr_d" => &mut self.k_spr_d,
+            "k_con_e" => &mut self.k_con_e,
+            "k_con_d" => &mut self.k_con_d,
+            "k_con_f" => &mut self.k_con_f,
+            "mu_con" => &mut self.mu_con,
+            _ => return None,
+        })
     }
 
     /// Checks every value is finite and in range; `source` names the file for the message.
@@ -251,6 +278,92 @@ pub struct HealthConfig {
     pub max_displacement_m: f32,
 }
 
+/// The suction seal between each cup and the film: when a cup holds, peels or slides off.
+///
+/// The model follows Dex-Net 3.0's suction contact (Mahler et al., ICRA 2018): a cup's lip
+/// holds the film with the vacuum force `V = Δp · A` (vacuum gauge pressure times the sealed
+/// area inside the lip), it resists pull-off while the normal load stays below `V`, and it resists
+/// shear by friction while the tangential load stays below `μ · (V − F_n)`, the vacuum's clamping
+/// force minus the normal pull (the vacuum-gripper sizing rule `F = Δp · A` with friction load
+/// cases, as in Mantriota 2007). Peeling is modelled per lip element: every attachment spring of a
+/// cup is one element of its lip, holding `lip_strength_ratio` times its even share of `V`; an
+/// element pulled harder than that along the cup axis lets go, the cup's sealed area (and so `V`)
+/// shrinks with the fraction of elements left, and below `min_sealed_fraction` the vacuum is lost
+/// and the whole cup detaches. Loads are low-pass filtered with time constant `load_filter_s`
+/// (the lip's compliance; without it the explicit integrator's substep-scale ringing would count).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SealConfig {
+    /// Seal physics on. Off (the study's model): springs never let go and loads are still reported.
+    pub enabled: bool,
+    /// Vacuum gauge pressure under a sealed cup (kPa).
+    pub vacuum_kpa: f32,
+    /// Radius of the cup's lip, which bounds the area the vacuum acts on (m).
+    pub lip_radius_m: f32,
+    /// Cup-on-film friction coefficient.
+    pub friction: f32,
+    /// A lip element (one attachment spring) peels when its pull along the cup axis exceeds this
+    /// multiple of its even share of the vacuum force.
+    pub lip_strength_ratio: f32,
+    /// Below this fraction of sealed lip elements the vacuum is lost and the cup detaches.
+    pub min_sealed_fraction: f32,
+    /// Loading: a cup seals only if its lip is at most this far from the film's plane (m).
+    pub max_gap_m: f32,
+    /// Loading: a cup seals only if the film's plane under it is tilted at most this much from
+    /// the cup's face (degrees).
+    pub max_tilt_deg: f32,
+    /// Loading: a cup seals only if the film under its lip deviates at most this much from a
+    /// plane (m); a fold or wrinkle under the lip leaks.
+    pub max_fold_m: f32,
+    /// Time constant of the low-pass filter on cup and lip loads (s).
+    pub load_filter_s: f32,
+}
+
+impl Default for SealConfig {
+    /// Seal physics off, with the physical scene's cup and vacuum values.
+    fn default() -> Self {
+        SealConfig {
+            enabled: false,
+            vacuum_kpa: 10.0,
+            lip_radius_m: 0.02,
+            friction: 0.5,
+            lip_strength_ratio: 3.0,
+            min_sealed_fraction: 0.5,
+            max_gap_m: 0.02,
+            max_tilt_deg: 20.0,
+            max_fold_m: 0.005,
+            load_filter_s: 0.01,
+        }
+    }
+}
+
+/// Hard limits of the robot carrying the tool. Tool commands beyond them are clamped, and every
+/// clamp is reported ([`crate::ToolCommandReport`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ToolLimits {
+    /// Largest linear speed of the tool (m/s).
+    pub max_speed_m_s: f32,
+    /// Largest linear acceleration (m/s²).
+    pub max_accel_m_s2: f32,
+    /// Largest angular speed (rad/s).
+    pub max_angular_speed_rad_s: f32,
+    /// Largest angular acceleration (rad/s²).
+    pub max_angular_accel_rad_s2: f32,
+}
+
+impl Default for ToolLimits {
+    /// A UR10e-class arm carrying a light tool: 2 m/s, 10 m/s², π rad/s, 20 rad/s².
+    fn default() -> Self {
+        ToolLimits {
+            max_speed_m_s: 2.0,
+            max_accel_m_s2: 10.0,
+            max_angular_speed_rad_s: std::f32::consts::PI,
+            max_angular_accel_rad_s2: 20.0,
+        }
+    }
+}
+
 /// A whole scene: everything but the per-environment placement and trajectory.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -267,6 +380,12 @@ pub struct SceneConfig {
     pub integrator: IntegratorConfig,
     /// Health checks.
     pub health: HealthConfig,
+    /// Suction seal model (off when the section is absent).
+    #[serde(default)]
+    pub seal: SealConfig,
+    /// Robot limits for commanded tool motion (defaults when the section is absent).
+    #[serde(default)]
+    pub tool_limits: ToolLimits,
     /// Default material parameters (each environment may override them).
     pub params: Params,
 }
@@ -462,6 +581,57 @@ impl SceneConfig {
             h.max_displacement_m as f64,
             1e-3,
             1e4,
+        )?;
+        let s = &self.seal;
+        check(f, "seal.vacuum_kpa", s.vacuum_kpa as f64, 0.0, 101.325)?;
+        check(f, "seal.lip_radius_m", s.lip_radius_m as f64, 1e-4, 0.5)?;
+        check(f, "seal.friction", s.friction as f64, 0.0, 10.0)?;
+        check(
+            f,
+            "seal.lip_strength_ratio",
+            s.lip_strength_ratio as f64,
+            1.0,
+            1e3,
+        )?;
+        check(
+            f,
+            "seal.min_sealed_fraction",
+            s.min_sealed_fraction as f64,
+            0.0,
+            1.0,
+        )?;
+        check(f, "seal.max_gap_m", s.max_gap_m as f64, 0.0, 1.0)?;
+        check(f, "seal.max_tilt_deg", s.max_tilt_deg as f64, 0.0, 90.0)?;
+        check(f, "seal.max_fold_m", s.max_fold_m as f64, 0.0, 1.0)?;
+        check(f, "seal.load_filter_s", s.load_filter_s as f64, 0.0, 10.0)?;
+        let t = &self.tool_limits;
+        check(
+            f,
+            "tool_limits.max_speed_m_s",
+            t.max_speed_m_s as f64,
+            1e-3,
+            100.0,
+        )?;
+        check(
+            f,
+            "tool_limits.max_accel_m_s2",
+            t.max_accel_m_s2 as f64,
+            1e-3,
+            1e4,
+        )?;
+        check(
+            f,
+            "tool_limits.max_angular_speed_rad_s",
+            t.max_angular_speed_rad_s as f64,
+            1e-3,
+            1e3,
+        )?;
+        check(
+            f,
+            "tool_limits.max_angular_accel_rad_s2",
+            t.max_angular_accel_rad_s2 as f64,
+            1e-3,
+            1e5,
         )?;
         self.params.validate(source)
     }

@@ -95,16 +95,21 @@ impl Model {
     }
 }
 
+impl EmbeddedPoint {
+    /// The point on a deformed configuration given by `position(particle)`.
+    pub fn evaluate_with(&self, position: impl Fn(usize) -> [f32; 3]) -> [f32; 3] {
+        let [a, b, c] = self.triangle.map(|i| position(i as usize));
+        let w = self.weights;
+        std::array::from_fn(|k| w[0] * a[k] + w[1] * b[k] + w[2] * c[k])
+    }
+}
+
 impl SurfaceEmbedding {
     /// The embedded points on a deformed configuration (`positions` of every particle).
     pub fn evaluate(&self, positions: &[[f32; 3]]) -> Vec<[f32; 3]> {
         self.points
             .iter()
-            .map(|e| {
-                let [a, b, c] = e.triangle.map(|i| positions[i as usize]);
-                let w = e.weights;
-                std::array::from_fn(|k| w[0] * a[k] + w[1] * b[k] + w[2] * c[k])
-            })
+            .map(|e| e.evaluate_with(|i| positions[i]))
             .collect()
     }
 }

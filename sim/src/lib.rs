@@ -23,7 +23,13 @@
 //! let markers = [[0.10, 0.25, -0.55], [0.40, 0.25, -0.30]]; // initial marker positions
 //! let placement = Placement::from_markers(&markers, [0.25, 0.26, -0.42], [0.25, 0.2, -0.42])?;
 //! let tool = ToolTrajectory::hold([0.25, 0.40, -0.42], [0.0, 0.0, 0.0, 1.0]);
-//! let spec = EnvSpec { placement, params: config.params, object_mass_kg: 0.57, trajectory: Arc::new(tool) };
+//! let spec = EnvSpec {
+//!     placement,
+//!     params: config.params,
+//!     object_mass_kg: 0.57,
+//!     disc_mass_scale: None,
+//!     trajectory: Arc::new(tool),
+//! };
 //! let mut sim = Simulator::new(model, vec![spec.clone(), spec])?;
 //! sim.step(64);
 //! let disc = sim.disc(1);
@@ -81,14 +87,24 @@ pub mod error;
 pub mod forces;
 pub mod math;
 pub mod model;
+pub mod randomize;
 mod sim;
 pub mod state;
+pub mod tool;
 pub mod trajectory;
 
-pub use config::{DriveMode, InertiaModel, Params, SceneConfig};
+#[cfg(test)]
+mod control_tests;
+
+pub use config::{DriveMode, InertiaModel, Params, SceneConfig, SealConfig, ToolLimits};
 pub use embed::{EmbeddedPoint, SurfaceEmbedding};
 pub use error::SimError;
 pub use model::{DiscMass, Model};
-pub use sim::{Simulator, LANES};
-pub use state::{DiscState, EnvSpec, HealthEvent, HealthReason, Placement};
+pub use randomize::Randomization;
+pub use sim::{EnvSnapshot, Simulator, LANES};
+pub use state::{
+    CupLoad, DiscState, EnvObservation, EnvSpec, HealthEvent, HealthReason, NoSealReason,
+    Placement, SealEvent, SealEventKind,
+};
+pub use tool::{ToolCommand, ToolCommandReport, ToolState};
 pub use trajectory::{ToolPose, ToolSample, ToolTrajectory};

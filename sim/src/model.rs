@@ -344,11 +344,22 @@ impl Model {
         )
     }
 
+    /// Number of cups.
+    pub fn num_cups(&self) -> usize {
+        self.num_cup / self.cup_size
+    }
+
     /// Disc mass and inertia for an object of `object_mass_kg`, following the configured rule.
     pub fn disc_mass(&self, object_mass_kg: f32) -> DiscMass {
+        self.disc_mass_with_scale(object_mass_kg, None)
+    }
+
+    /// Disc mass and inertia for an object of `object_mass_kg` scaled by `mass_scale` (`None`:
+    /// the scene's `disc.mass_scale`).
+    pub fn disc_mass_with_scale(&self, object_mass_kg: f32, mass_scale: Option<f32>) -> DiscMass {
         let d = &self.config.disc;
         let (r, h) = (d.radius_m, d.thickness_m);
-        let scaled = d.mass_scale * object_mass_kg;
+        let scaled = mass_scale.unwrap_or(d.mass_scale) * object_mass_kg;
         let cylinder = |m: f32, r: f32| {
             let side = m * (3.0 * r * r + h * h) / 12.0;
             [side, m * r * r / 2.0, side]

@@ -5,12 +5,15 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use crate::block::{advance_block, get3, Block, StepConstants};
-use crate::config::Params;
+use serde::{Deserialize, Serialize};
+
+use crate::block::{advance_block, get3, Block, LaneSnapshot, StepConstants};
+use crate::config::{Params, ToolLimits};
 use crate::embed::SurfaceEmbedding;
 use crate::error::SimError;
 use crate::model::Model;
-use crate::state::{DiscState, EnvSpec, HealthEvent};
+use crate::state::{CupLoad, DiscState, EnvObservation, EnvSpec, HealthEvent, SealEvent};
+use crate::tool::{plan, ToolCommand, ToolCommandReport, ToolDrive, ToolState};
 use crate::trajectory::ToolTrajectory;
 
 /// Environments per block in batches (8 f32 lanes = one AVX2 register).
@@ -24,8 +27,16 @@ enum Blocks {
 }
 
 /// Runs `$body` with `$b` bound to the block holding environment `$env` and `$l` to its lane.
+/// Panics with a clear message if there is no such environment (an index is the caller's
+/// logic, never user input; the lane would otherwise read padding data).
 macro_rules! with_lane {
-    ($self:expr, $env:expr, |$b:ident, $l:ident| $body:expr) => {
+    ($self:expr, $env:expr, |$b:ident, $l:ident| $body:expr) => {{
+        let env: usize = $env;
+        assert!(
+            env < $self.specs.len(),
+            "environment {env} out of range (batch of {})",
+            $self.specs.len()
+        );
         match &$self.blocks {
             Blocks::Wide(blocks) => {
                 let $b = &blocks[$env / LANES];
@@ -38,7 +49,46 @@ macro_rules! with_lane {
                 $body
             }
         }
-    };
+    }};
+}
+
+/// Runs `$body` with `$b` bound mutably to the block holding environment `$env` (checked).
+macro_rules! with_block_mut {
+    ($self:expr, $env:expr, |$b:ident| $body:expr) => {{
+        let env: usize = $env;
+        $self.check_env(env)?;
+        match &mut $self.blocks {
+            Blocks::Wide(blocks) => {
+                let $b = &mut blocks[env / LANES];
+                $body
+            }
+            Blocks::Single(blocks) => {
+                let $b = &mut blocks[env];
+                $body
+            }
+        }
+    }};
+}
+
+/// One environment's full state: its spec, particles, disc, cups and seals, tool and clock.
+/// Restored into any environment of a batch built on the same model, it continues bit for bit as
+/// the original would; it serialises with serde (e.g. for exact resume of training).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvSnapshot {
+    /// The environment's spec (placement, parameters, masses, trajectory).
+    pub spec: EnvSpec,
+    /// Particles, cups and disc of the model it was taken from (checked on restore).
+    shape: [usize; 3],
+    /// Substep length of the model it was taken from (checked on restore).
+    dt: f32,
+    lane: LaneSnapshot,
+}
+
+impl EnvSnapshot {
+    /// The environment's own time when the snapshot was taken (substeps since its episode began).
+    pub fn substep(&self) -> u64 {
+        self.lane.clock
+    }
 }
 
 /// A batch of environments stepped in lockstep.
@@ -47,8 +97,10 @@ pub struct Simulator {
     specs: Vec<EnvSpec>,
     blocks: Blocks,
     constants: StepConstants,
+    limits: ToolLimits,
     substep: u64,
     events: Vec<HealthEvent>,
+    seal_events: Vec<SealEvent>,
 }
 
 fn lane_envs<const W: usize>(block: usize, num_envs: usize) -> ([usize; W], [bool; W]) {
@@ -81,6 +133,46 @@ fn build_blocks(model: &Model, specs: &[EnvSpec]) -> Blocks {
     }
 }
 
+/// Checks one environment's spec.
+fn validate_spec(env: usize, spec: &EnvSpec) -> Result<(), SimError> {
+    let fail = |message: String| Err(SimError::Env { env, message });
+    if let Err(e) = spec
+        .params
+        .validate(&format!("environment {env} parameters"))
+    {
+        return fail(e.to_string());
+    }
+    let pl = &spec.placement;
+    let values = pl
+        .package_origin
+        .iter()
+        .chain(&pl.cup_point)
+        .chain(&pl.disc_position)
+        .chain(pl.disc_hold.iter().flatten())
+        .chain(&pl.disc_orientation)
+        .chain([&pl.package_yaw_rad]);
+    if values.clone().any(|c| !c.is_finite()) {
+        return fail("placement has a non-finite coordinate".into());
+    }
+    if pl.disc_orientation.iter().map(|c| c * c).sum::<f32>() < 1e-6 {
+        return fail("disc orientation is a zero quaternion".into());
+    }
+    if !(spec.object_mass_kg.is_finite() && spec.object_mass_kg > 0.0) {
+        return fail(format!(
+            "object mass {} kg: expected a positive number",
+            spec.object_mass_kg
+        ));
+    }
+    if let Some(scale) = spec.disc_mass_scale {
+        if !(scale.is_finite() && (1e-3..=1e4).contains(&scale)) {
+            return fail(format!(
+                "disc mass scale {scale}: expected a number in [0.001, 10000]"
+            ));
+        }
+    }
+    Ok(())
+}
+
 impl Simulator {
     /// Builds the batch: one environment per spec, all at rest at time 0.
     pub fn new(model: Arc<Model>, specs: Vec<EnvSpec>) -> Result<Self, SimError> {
@@ -91,43 +183,21 @@ impl Simulator {
             });
         }
         for (env, spec) in specs.iter().enumerate() {
-            spec.params
-                .validate(&format!("environment {env} parameters"))
-                .map_err(|e| SimError::Env {
-                    env,
-                    message: e.to_string(),
-                })?;
-            let pl = &spec.placement;
-            let values = pl
-                .package_origin
-                .iter()
-                .chain(&pl.cup_point)
-                .chain(&pl.disc_position);
-            if values.clone().any(|c| !c.is_finite()) {
-                return Err(SimError::Env {
-                    env,
-                    message: "placement has a non-finite coordinate".into(),
-                });
-            }
-            if !(spec.object_mass_kg.is_finite() && spec.object_mass_kg > 0.0) {
-                return Err(SimError::Env {
-                    env,
-                    message: format!(
-                        "object mass {} kg: expected a positive number",
-                        spec.object_mass_kg
-                    ),
-                });
-            }
+            validate_spec(env, spec)?;
         }
         let blocks = build_blocks(&model, &specs);
-        Ok(Simulator {
+        let mut sim = Simulator {
             constants: StepConstants::new(&model),
+            limits: model.config.tool_limits.clone(),
             model,
             specs,
             blocks,
             substep: 0,
             events: Vec::new(),
-        })
+            seal_events: Vec::new(),
+        };
+        sim.collect_events();
+        Ok(sim)
     }
 
     /// Puts every environment back to its initial state (time 0, health flags cleared), keeping
@@ -136,6 +206,190 @@ impl Simulator {
         self.blocks = build_blocks(&self.model, &self.specs);
         self.substep = 0;
         self.events.clear();
+        self.seal_events.clear();
+        self.collect_events();
+    }
+
+    /// Restarts environment `env` from `spec` (time 0 of its own clock, cups sealed anew, any
+    /// freeze lifted) while the others keep their state; their results are bit-identical to a
+    /// run without this reset.
+    pub fn reset_env(&mut self, env: usize, spec: EnvSpec) -> Result<(), SimError> {
+        self.check_env(env)?;
+        validate_spec(env, &spec)?;
+        let model = self.model.clone();
+        with_block_mut!(self, env, |b| b.reset_env(env, &model, &spec));
+        self.specs[env] = spec;
+        self.collect_events();
+        Ok(())
+    }
+
+    /// A copy of environment `env`'s full state.
+    pub fn snapshot(&self, env: usize) -> EnvSnapshot {
+        let lane = with_lane!(self, env, |b, l| b.take_lane(l));
+        EnvSnapshot {
+            spec: self.specs[env].clone(),
+            shape: self.shape(),
+            dt: self.constants.dt,
+            lane,
+        }
+    }
+
+    fn shape(&self) -> [usize; 3] {
+        [
+            self.model.num_particles(),
+            self.model.num_cup,
+            self.model.num_cups(),
+        ]
+    }
+
+    /// Puts `snapshot` into environment `env` (any environment of a batch on the same model):
+    /// from here on `env` continues exactly as the snapshot's environment would have.
+    pub fn restore(&mut self, env: usize, snapshot: &EnvSnapshot) -> Result<(), SimError> {
+        self.check_env(env)?;
+        let lane = &snapshot.lane;
+        let consistent = snapshot.shape == self.shape()
+            && snapshot.dt.to_bits() == self.constants.dt.to_bits()
+            && [
+                lane.x.len(),
+                lane.v.len(),
+                lane.x0.len(),
+                lane.contact_point.len(),
+                lane.contact_normal.len(),
+            ]
+            .iter()
+            .all(|&n| n == self.model.num_particles())
+            && lane.cup_offsets.len() == self.model.num_cup
+            && lane.springs.len() == self.model.num_cup
+            && lane.cups.len() == self.model.num_cups()
+            && lane
+                .springs
+                .iter()
+                .all(|s| (s.0 as usize) < self.model.num_package);
+        if !consistent {
+            return Err(SimError::Env {
+                env,
+                message: format!(
+                    "snapshot of a different model ({} particles, {} cup particles, {} cups, \
+                     dt {} s; this batch has {:?} and dt {} s)",
+                    snapshot.shape[0],
+                    snapshot.shape[1],
+                    snapshot.shape[2],
+                    snapshot.dt,
+                    self.shape(),
+                    self.constants.dt
+                ),
+            });
+        }
+        validate_spec(env, &snapshot.spec)?;
+        let model = self.model.clone();
+        with_block_mut!(self, env, |b| b.restore_env(
+            env,
+            &model,
+            &snapshot.spec,
+            lane
+        ));
+        self.specs[env] = snapshot.spec.clone();
+        Ok(())
+    }
+
+    /// Commands the tool of `env` for the next `duration_s` seconds (one control interval; see
+    /// [`ToolCommand`]), starting from its pose and twist now. The robot's limits
+    /// ([`Simulator::tool_limits`]) are enforced; the report says what they changed.
+    pub fn command_tool(
+        &mut self,
+        env: usize,
+        command: ToolCommand,
+        duration_s: f64,
+    ) -> Result<ToolCommandReport, SimError> {
+        self.check_env(env)?;
+        let values: Vec<f32> = match command {
+            ToolCommand::Twist { linear, angular } => linear.into_iter().chain(angular).collect(),
+            ToolCommand::Pose {
+                position,
+                orientation,
+            } => position.into_iter().chain(orientation).collect(),
+        };
+        if values.iter().any(|c| !c.is_finite()) || !(duration_s.is_finite() && duration_s > 0.0) {
+            return Err(SimError::Env {
+                env,
+                message: format!(
+                    "tool command {command:?} over {duration_s} s: expected finite values and a positive duration"
+                ),
+            });
+        }
+        if let ToolCommand::Pose { orientation, .. } = command {
+            if orientation.iter().map(|c| c * c).sum::<f32>() < 1e-6 {
+                return Err(SimError::Env {
+                    env,
+                    message: "tool command orientation is a zero quaternion".into(),
+                });
+            }
+        }
+        let (t0, now) = self.tool_now(env);
+        let (segment, report) = plan(t0, now, command, duration_s, &self.limits);
+        let drive = ToolDrive::Commanded(segment);
+        with_block_mut!(self, env, |b| b.set_drive(env, &drive));
+        Ok(report)
+    }
+
+    /// The environment's own time and its tool's state now.
+    fn tool_now(&self, env: usize) -> (f64, ToolState) {
+        let k = &self.constants;
+        with_lane!(self, env, |b, l| (
+            b.clock[l] as f64 * k.dt64,
+            b.tool_state(l, k, 0.0)
+        ))
+    }
+
+    /// The robot limits applied to tool commands (the scene's `tool_limits`).
+    pub fn tool_limits(&self) -> &ToolLimits {
+        &self.limits
+    }
+
+    /// The tool of `env` now: pose and twist.
+    pub fn tool_state(&self, env: usize) -> ToolState {
+        self.tool_now(env).1
+    }
+
+    /// Seals the cups of `env` anew on the film as it is now (the loading test of the seal
+    /// model decides which cups hold), e.g. after [`Simulator::set_particle_positions`].
+    pub fn attach_cups(&mut self, env: usize) -> Result<(), SimError> {
+        self.check_env(env)?;
+        let (time, tool) = self.tool_now(env);
+        let model = self.model.clone();
+        with_block_mut!(self, env, |b| {
+            for l in 0..b.envs.len() {
+                if b.envs[l] == env {
+                    b.attach_cups_lane(l, &model, time, tool.orientation);
+                }
+            }
+        });
+        self.collect_events();
+        Ok(())
+    }
+
+    /// Moves the block events (health, seal) into the simulator's logs, in time order.
+    fn collect_events(&mut self) {
+        fn drain<const W: usize>(
+            blocks: &mut [Block<W>],
+            health: &mut Vec<HealthEvent>,
+            seal: &mut Vec<SealEvent>,
+        ) {
+            for b in blocks {
+                health.append(&mut b.events);
+                seal.append(&mut b.seal_events);
+            }
+        }
+        let (mut health, mut seal) = (Vec::new(), Vec::new());
+        match &mut self.blocks {
+            Blocks::Wide(blocks) => drain(blocks, &mut health, &mut seal),
+            Blocks::Single(blocks) => drain(blocks, &mut health, &mut seal),
+        }
+        health.sort_by(|a, b| a.time.total_cmp(&b.time).then(a.env.cmp(&b.env)));
+        // Stable: within one environment and instant, the order the block found them in.
+        seal.sort_by(|a, b| a.env.cmp(&b.env).then(a.time.total_cmp(&b.time)));
+        self.events.append(&mut health);
+        self.seal_events.append(&mut seal);
     }
 
     /// The shared model.
@@ -153,41 +407,43 @@ impl Simulator {
         self.constants.dt
     }
 
-    /// Substeps taken so far.
+    /// Substeps this simulator has stepped since it was built or [`Simulator::reset`] (every
+    /// environment's own clock starts there too, unless it was reset or restored since).
     pub fn substep(&self) -> u64 {
         self.substep
     }
 
-    /// Simulated time (s), counted from the start of the rest period.
+    /// Simulated time (s) of [`Simulator::substep`], counted from the start of the rest period.
     pub fn time(&self) -> f64 {
         self.substep as f64 * self.constants.dt64
     }
 
-    /// Advances every environment by `substeps` substeps (in parallel over blocks of
-    /// environments; frozen environments stay as they are).
+    /// Substeps environment `env` has taken since its episode began (its own clock; it stops
+    /// while the environment is frozen or retired).
+    pub fn env_substep(&self, env: usize) -> u64 {
+        with_lane!(self, env, |b, l| b.clock[l])
+    }
+
+    /// Environment `env`'s own time (s) since its episode began.
+    pub fn env_time(&self, env: usize) -> f64 {
+        self.env_substep(env) as f64 * self.constants.dt64
+    }
+
+    /// Advances every active environment by `substeps` substeps of its own clock (in parallel
+    /// over blocks of environments; frozen and retired environments stay as they are and cost
+    /// nothing once their whole block is).
     pub fn step(&mut self, substeps: u64) {
-        let (model, k, start) = (&*self.model, &self.constants, self.substep);
+        let (model, k) = (&*self.model, &self.constants);
         match &mut self.blocks {
             Blocks::Wide(blocks) => blocks
                 .par_iter_mut()
-                .for_each(|b| advance_block(b, model, k, start, substeps, false)),
+                .for_each(|b| advance_block(b, model, k, substeps, false)),
             Blocks::Single(blocks) => blocks
                 .iter_mut()
-                .for_each(|b| advance_block(b, model, k, start, substeps, true)),
+                .for_each(|b| advance_block(b, model, k, substeps, true)),
         }
         self.substep += substeps;
-        let mut fresh: Vec<HealthEvent> = match &mut self.blocks {
-            Blocks::Wide(blocks) => blocks
-                .iter_mut()
-                .flat_map(|b| std::mem::take(&mut b.events))
-                .collect(),
-            Blocks::Single(blocks) => blocks
-                .iter_mut()
-                .flat_map(|b| std::mem::take(&mut b.events))
-                .collect(),
-        };
-        fresh.sort_by(|a, b| a.time.total_cmp(&b.time).then(a.env.cmp(&b.env)));
-        self.events.extend(fresh);
+        self.collect_events();
     }
 
     /// Stops stepping `env` (e.g. its recording has ended): its state stays as it is, it counts as
@@ -213,10 +469,10 @@ impl Simulator {
                 message: e.to_string(),
             })?;
         self.specs[env].params = params;
-        let (model, mass) = (&*self.model, self.specs[env].object_mass_kg);
+        let (model, spec) = (&*self.model, &self.specs[env]);
         match &mut self.blocks {
-            Blocks::Wide(blocks) => blocks[env / LANES].set_params(env, model, &params, mass),
-            Blocks::Single(blocks) => blocks[env].set_params(env, model, &params, mass),
+            Blocks::Wide(blocks) => blocks[env / LANES].set_params(env, model, spec),
+            Blocks::Single(blocks) => blocks[env].set_params(env, model, spec),
         }
         Ok(())
     }
@@ -251,6 +507,30 @@ impl Simulator {
     /// The spec an environment was built from (with any parameter/trajectory replacements).
     pub fn spec(&self, env: usize) -> &EnvSpec {
         &self.specs[env]
+    }
+
+    /// Overwrites the positions of every particle of `env` (velocities unchanged; cup particles
+    /// follow the tool again at the next substep).
+    pub fn set_particle_positions(
+        &mut self,
+        env: usize,
+        positions: &[[f32; 3]],
+    ) -> Result<(), SimError> {
+        self.check_env(env)?;
+        if positions.len() != self.model.num_particles()
+            || positions.iter().flatten().any(|c| !c.is_finite())
+        {
+            return Err(SimError::Env {
+                env,
+                message: format!(
+                    "{} positions given, expected {} finite ones",
+                    positions.len(),
+                    self.model.num_particles()
+                ),
+            });
+        }
+        with_block_mut!(self, env, |b| b.set_positions(env, positions));
+        Ok(())
     }
 
     /// Overwrites the velocities of every particle of `env` (e.g. to start from a perturbed state).
@@ -326,9 +606,113 @@ impl Simulator {
         with_lane!(self, env, |b, l| b.active.0[l] < 0.5)
     }
 
-    /// Every health event so far, in time order.
+    /// Every health event not yet drained, in time order.
     pub fn health_events(&self) -> &[HealthEvent] {
         &self.events
+    }
+
+    /// Every seal event not yet drained (loading failures, peeling, pull-off, sliding, drops),
+    /// ordered by environment, then time; a drop comes after the failure that caused it.
+    pub fn seal_events(&self) -> &[SealEvent] {
+        &self.seal_events
+    }
+
+    /// Moves the health and seal events into the caller's buffers (appended), leaving the logs
+    /// empty: an environment loop drains them every control step without allocating.
+    pub fn drain_events(&mut self, health: &mut Vec<HealthEvent>, seal: &mut Vec<SealEvent>) {
+        health.append(&mut self.events);
+        seal.append(&mut self.seal_events);
+    }
+
+    /// Number of cups of the model (the length of one environment's row in
+    /// [`Simulator::read_cup_loads`]).
+    pub fn num_cups(&self) -> usize {
+        self.model.num_cups()
+    }
+
+    /// Writes the tool, disc and seal summary of every environment into `out` (one entry per
+    /// environment, in order).
+    pub fn read_states(&self, out: &mut [EnvObservation]) -> Result<(), SimError> {
+        self.check_len("read_states", out.len(), self.num_envs())?;
+        let k = &self.constants;
+        for (env, slot) in out.iter_mut().enumerate() {
+            *slot = with_lane!(self, env, |b, l| {
+                let tool = b.tool_state(l, k, 0.0);
+                let d = &b.disc;
+                let v = get3(&d.q.v, l);
+                let disc = DiscState {
+                    position: get3(&d.com, l),
+                    orientation: [v[0], v[1], v[2], d.q.w.0[l]],
+                    velocity: get3(&d.v, l),
+                    angular_velocity: get3(&d.w, l),
+                };
+                EnvObservation {
+                    time: b.clock[l] as f64 * k.dt64,
+                    tool_position: tool.position.map(|c| c as f32),
+                    tool_orientation: tool.orientation.map(|c| c as f32),
+                    tool_velocity: tool.velocity.map(|c| c as f32),
+                    tool_angular_velocity: tool.angular_velocity.map(|c| c as f32),
+                    disc,
+                    disc_in_tool: relative_to_tool(&disc, &tool),
+                    cups_attached: b.attached_cups(l),
+                    frozen: b.active.0[l] < 0.5,
+                }
+            });
+        }
+        Ok(())
+    }
+
+    /// Writes the load of every cup of every environment into `out`: environment-major, one
+    /// row of [`Simulator::num_cups`] entries per environment.
+    pub fn read_cup_loads(&self, out: &mut [CupLoad]) -> Result<(), SimError> {
+        let cups = self.num_cups();
+        self.check_len("read_cup_loads", out.len(), self.num_envs() * cups)?;
+        let k = &self.constants;
+        for (env, row) in out.chunks_mut(cups).enumerate() {
+            with_lane!(self, env, |b, l| b.read_cup_loads(l, k, row));
+        }
+        Ok(())
+    }
+
+    /// Writes the world positions of `embedding`'s points in every environment into `out`:
+    /// environment-major, one row of `embedding.points.len()` entries per environment.
+    pub fn read_points(
+        &self,
+        embedding: &SurfaceEmbedding,
+        out: &mut [[f32; 3]],
+    ) -> Result<(), SimError> {
+        let n = embedding.points.len();
+        self.check_len("read_points", out.len(), self.num_envs() * n)?;
+        if embedding
+            .points
+            .iter()
+            .flat_map(|p| p.triangle)
+            .any(|i| i as usize >= self.model.num_particles())
+        {
+            return Err(SimError::Env {
+                env: 0,
+                message: "embedding refers to particles this model does not have".into(),
+            });
+        }
+        for (env, row) in out.chunks_mut(n.max(1)).enumerate().take(self.num_envs()) {
+            with_lane!(self, env, |b, l| {
+                for (p, slot) in embedding.points.iter().zip(row.iter_mut()) {
+                    *slot = p.evaluate_with(|i| get3(&b.x[i], l));
+                }
+            });
+        }
+        Ok(())
+    }
+
+    fn check_len(&self, what: &str, got: usize, expected: usize) -> Result<(), SimError> {
+        if got == expected {
+            Ok(())
+        } else {
+            Err(SimError::Env {
+                env: 0,
+                message: format!("{what}: buffer of {got} entries, expected {expected}"),
+            })
+        }
     }
 
     /// Kinetic energy of the package particles and the disc of `env` (J).
@@ -339,7 +723,10 @@ impl Simulator {
             .map(|v| 0.5 * m * v.iter().map(|c| (*c as f64).powi(2)).sum::<f64>())
             .sum();
         let disc = self.disc(env);
-        let dm = self.model.disc_mass(self.specs[env].object_mass_kg);
+        let spec = &self.specs[env];
+        let dm = self
+            .model
+            .disc_mass_with_scale(spec.object_mass_kg, spec.disc_mass_scale);
         let lin = 0.5
             * dm.mass as f64
             * disc
@@ -392,6 +779,28 @@ impl Simulator {
     }
 }
 
+/// `disc` expressed relative to the tool: position and orientation in the tool frame, velocity
+/// relative to the tool's own velocity at the disc's position, angular velocity relative to the
+/// tool's; vectors in the tool frame.
+fn relative_to_tool(disc: &DiscState, tool: &ToolState) -> DiscState {
+    use glam::{DQuat, DVec3};
+    let q = DQuat::from_array(tool.orientation);
+    let inv = q.inverse();
+    let r = DVec3::from(disc.position.map(f64::from)) - DVec3::from(tool.position);
+    let w_tool = DVec3::from(tool.angular_velocity);
+    let v_rel =
+        DVec3::from(disc.velocity.map(f64::from)) - (DVec3::from(tool.velocity) + w_tool.cross(r));
+    let w_rel = DVec3::from(disc.angular_velocity.map(f64::from)) - w_tool;
+    let q_rel = inv * DQuat::from_array(disc.orientation.map(f64::from));
+    let f = |v: DVec3| v.to_array().map(|c| c as f32);
+    DiscState {
+        position: f(inv * r),
+        orientation: q_rel.to_array().map(|c| c as f32),
+        velocity: f(inv * v_rel),
+        angular_velocity: f(inv * w_rel),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -410,14 +819,10 @@ mod tests {
             [0.0, 0.0, 0.0, 1.0],
         );
         EnvSpec {
-            placement: Placement {
-                package_origin: [0.0, 0.3, 0.0],
-                cup_point,
-                disc_position: centre,
-                disc_hold: None,
-            },
+            placement: Placement::new([0.0, 0.3, 0.0], cup_point, centre),
             params: config.params,
             object_mass_kg: 0.57,
+            disc_mass_scale: None,
             trajectory: Arc::new(tool.unwrap_or(hold)),
         }
     }

@@ -3,12 +3,14 @@
 
 use std::sync::Arc;
 
+use serde::{Deserialize, Serialize};
+
 use crate::config::Params;
 use crate::error::SimError;
 use crate::trajectory::ToolTrajectory;
 
 /// Where one environment's package, tool and disc start (world frame, m).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Placement {
     /// Package grid corner: lower-sheet/upper-sheet vertex (0, 0) sits here (± half the
     /// thickness in y). The package extends along +x (long side) and +z (short side).
@@ -25,9 +27,32 @@ pub struct Placement {
     /// free from the start (the reference's rule), and it slides to wherever the sagging package
     /// lets it rest.
     pub disc_hold: Option<[f32; 3]>,
+    /// Yaw of the package under the tool (rad, about world y through `cup_point`): the package's
+    /// particles, the disc and its hold point are turned by it before the cups attach.
+    #[serde(default)]
+    pub package_yaw_rad: f32,
+    /// Initial disc orientation (x, y, z, w); the identity keeps the disc axis along world y.
+    #[serde(default = "identity_quat")]
+    pub disc_orientation: [f32; 4],
+}
+
+fn identity_quat() -> [f32; 4] {
+    [0.0, 0.0, 0.0, 1.0]
 }
 
 impl Placement {
+    /// A placement with a free disc in its identity orientation and no package yaw.
+    pub fn new(package_origin: [f32; 3], cup_point: [f32; 3], disc_position: [f32; 3]) -> Self {
+        Placement {
+            package_origin,
+            cup_point,
+            disc_position,
+            disc_hold: None,
+            package_yaw_rad: 0.0,
+            disc_orientation: identity_quat(),
+        }
+    }
+
     /// The reference rule (`reference-model.md` §1, §4): package origin = (min x, mean y, min z)
     /// of the initial (row 0) markers; the disc at the object's x, z and the markers' mean y.
     pub fn from_markers(
@@ -50,12 +75,11 @@ impl Placement {
             .fold(f32::INFINITY, f32::min);
         let mean_y = (initial_markers.iter().map(|m| m[1] as f64).sum::<f64>()
             / initial_markers.len() as f64) as f32;
-        Ok(Placement {
-            package_origin: [min_x, mean_y, min_z],
+        Ok(Placement::new(
+            [min_x, mean_y, min_z],
             cup_point,
-            disc_position: [object_position[0], mean_y, object_position[2]],
-            disc_hold: None,
-        })
+            [object_position[0], mean_y, object_position[2]],
+        ))
     }
 
     /// This placement with the disc held at `target` during the rest period (see
@@ -70,7 +94,7 @@ impl Placement {
 }
 
 /// Everything that differs between environments of one batch.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EnvSpec {
     /// Initial placement.
     pub placement: Placement,
@@ -78,12 +102,15 @@ pub struct EnvSpec {
     pub params: Params,
     /// Object mass (kg) before the config's scaling (reference: `object_total_mass_kg`).
     pub object_mass_kg: f32,
+    /// Simulated disc kg per object kg for this environment; `None` takes the scene's
+    /// `disc.mass_scale`.
+    pub disc_mass_scale: Option<f32>,
     /// Tool trajectory (time 0 = start of motion, after the configured rest period).
     pub trajectory: Arc<ToolTrajectory>,
 }
 
 /// Pose and twist of one environment's disc.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DiscState {
     /// Centre of mass (m).
     pub position: [f32; 3],
@@ -96,7 +123,7 @@ pub struct DiscState {
 }
 
 /// Why an environment was frozen.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum HealthReason {
     /// A position or velocity became NaN or infinite.
     NonFinite,
@@ -104,17 +131,107 @@ pub enum HealthReason {
     TooFast,
     /// A particle or the disc moved further than `health.max_displacement_m` from its start.
     TooFar,
+    /// The disc left the package: its centre is outside the box around the package's particles
+    /// grown by the particle radius and the disc's radius, e.g. it fell through a sheet.
+    ObjectOutside,
 }
 
 /// An environment flagged by the health check; it is frozen from then on.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HealthEvent {
     /// Environment index.
     pub env: usize,
     /// What was wrong.
     pub reason: HealthReason,
-    /// Simulated time of the check that caught it (s, from the start of the rest period).
+    /// The environment's own time at the check that caught it (s, from the start of its
+    /// episode, i.e. of the rest period).
     pub time: f64,
+}
+
+/// One environment's tool, disc and seal summary at the current substep (see
+/// [`crate::Simulator::read_states`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EnvObservation {
+    /// The environment's own time (s, from the start of its episode).
+    pub time: f64,
+    /// Tool position (m, world).
+    pub tool_position: [f32; 3],
+    /// Tool orientation (x, y, z, w).
+    pub tool_orientation: [f32; 4],
+    /// Tool linear velocity (m/s, world).
+    pub tool_velocity: [f32; 3],
+    /// Tool angular velocity (rad/s, world).
+    pub tool_angular_velocity: [f32; 3],
+    /// The disc in the world frame.
+    pub disc: DiscState,
+    /// The disc relative to the tool, in the tool frame: position and orientation relative to
+    /// the tool's, velocity relative to the tool's point velocity there, angular velocity
+    /// relative to the tool's.
+    pub disc_in_tool: DiscState,
+    /// Cups still sealed.
+    pub cups_attached: u32,
+    /// Whether the environment is frozen (health check) or retired.
+    pub frozen: bool,
+}
+
+/// One cup's load at the current substep (see [`crate::Simulator::read_cup_loads`]), after the
+/// seal model's low-pass filter.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CupLoad {
+    /// Whether the cup holds the film.
+    pub attached: bool,
+    /// Pull of the film on the cup along the cup's axis (N; negative: the film pushes on it).
+    pub normal_n: f32,
+    /// Tangential load in the cup's plane (N).
+    pub shear_n: f32,
+    /// Vacuum holding force of the sealed area, Δp·A·(sealed fraction) (N).
+    pub capacity_n: f32,
+    /// Fraction of the lip still sealed.
+    pub sealed_fraction: f32,
+    /// max(normal / capacity, shear / (μ·(capacity − normal))): 1 is the failure limit; what a
+    /// real gripper sees as vacuum loss.
+    pub utilisation: f32,
+}
+
+/// Why a cup did not seal at pick time.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum NoSealReason {
+    /// The lip is further than `seal.max_gap_m` from the film's plane (m).
+    Gap(f32),
+    /// The film's plane is tilted more than `seal.max_tilt_deg` from the cup face (degrees).
+    Tilt(f32),
+    /// The film under the lip deviates more than `seal.max_fold_m` from a plane (m).
+    Fold(f32),
+}
+
+/// What happened to a seal.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum SealEventKind {
+    /// Loading failed: the cup never attached.
+    NotSealed(NoSealReason),
+    /// Lip elements peeled until the vacuum was lost.
+    Peeled,
+    /// The normal pull exceeded the vacuum force.
+    PulledOff,
+    /// The shear load exceeded friction times the clamping force: the cup slid off.
+    Slid,
+    /// No cup holds the package any more: it is dropped.
+    Dropped,
+}
+
+/// A seal event of one environment.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SealEvent {
+    /// Environment index.
+    pub env: usize,
+    /// Cup index (`None` for [`SealEventKind::Dropped`]).
+    pub cup: Option<usize>,
+    /// What happened.
+    pub kind: SealEventKind,
+    /// The environment's own time (s).
+    pub time: f64,
+    /// The cup's load at that moment (filtered).
+    pub load: CupLoad,
 }
 
 #[cfg(test)]

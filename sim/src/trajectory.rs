@@ -7,10 +7,13 @@
 //! at its own timestamps. Before the first sample the tool holds its first pose with zero velocity
 //! (the rest period), after the last it holds the last pose with zero velocity.
 
+use glam::DQuat;
+use serde::{Deserialize, Serialize};
+
 use crate::error::SimError;
 
 /// One recorded tool sample (world frame, SI).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ToolSample {
     /// Time (s) from the start of motion.
     pub t: f64,
@@ -31,10 +34,13 @@ pub struct ToolPose {
     pub orientation: [f32; 4],
     /// Linear velocity (m/s).
     pub velocity: [f32; 3],
+    /// Angular velocity (rad/s, world frame).
+    pub angular_velocity: [f32; 3],
 }
 
 /// A validated tool trajectory: at least one sample, strictly increasing finite times.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "Vec<ToolSample>", into = "Vec<ToolSample>")]
 pub struct ToolTrajectory {
     samples: Vec<ToolSample>,
 }
@@ -115,6 +121,7 @@ impl ToolTrajectory {
             position: x.position.map(|c| c as f32),
             orientation: x.orientation.map(|c| c as f32),
             velocity: [0.0; 3],
+            angular_velocity: [0.0; 3],
         };
         if t <= s[0].t {
             return hold(&s[0]);
@@ -132,11 +139,29 @@ impl ToolTrajectory {
         let q = normalise(std::array::from_fn(|i| {
             lerp(a.orientation[i], sign * b.orientation[i])
         }));
+        // The segment's constant angular velocity: its rotation over its duration.
+        let qa = DQuat::from_array(a.orientation);
+        let qb = DQuat::from_array(b.orientation.map(|c| sign * c));
+        let omega = (qb * qa.inverse()).to_scaled_axis() / (b.t - a.t);
         ToolPose {
             position: std::array::from_fn(|i| lerp(a.position[i], b.position[i]) as f32),
             orientation: q.map(|c| c as f32),
             velocity: std::array::from_fn(|i| lerp(a.velocity[i], b.velocity[i]) as f32),
+            angular_velocity: omega.to_array().map(|c| c as f32),
         }
+    }
+}
+
+impl TryFrom<Vec<ToolSample>> for ToolTrajectory {
+    type Error = SimError;
+    fn try_from(samples: Vec<ToolSample>) -> Result<Self, SimError> {
+        ToolTrajectory::new(samples)
+    }
+}
+
+impl From<ToolTrajectory> for Vec<ToolSample> {
+    fn from(trajectory: ToolTrajectory) -> Self {
+        trajectory.samples
     }
 }
 
@@ -164,6 +189,8 @@ mod tests {
         .unwrap();
         let mid = traj.pose_at(0.25);
         assert!((mid.position[0] - 0.5).abs() < 1e-6 && (mid.velocity[0] - 0.5).abs() < 1e-6);
+        // A quarter turn about y in 1 s.
+        assert!((mid.angular_velocity[1] - std::f32::consts::FRAC_PI_2).abs() < 1e-5);
         let n: f32 = mid.orientation.iter().map(|c| c * c).sum();
         assert!((n - 1.0).abs() < 1e-6);
         assert_eq!(traj.pose_at(-3.0).velocity, [0.0; 3]);

@@ -230,6 +230,7 @@ impl Replay {
             placement,
             params: config.params,
             object_mass_kg: target.object_mass_kg,
+            disc_mass_scale: None,
             trajectory: target.tool,
         };
         let sim = Simulator::new(model.clone(), vec![spec]).map_err(input_error)?;

@@ -16,15 +16,24 @@
 //! whose lanes would be left bit-for-bit unchanged: contact forces are applied by a per-lane select,
 //! never by adding a zero.
 
+mod assembly;
+mod health;
+mod seal;
+mod snapshot;
+
 use std::sync::Arc;
 
 use crate::config::DriveMode;
-use crate::forces::{self, ContactMaterial};
+use crate::forces::ContactMaterial;
 use crate::math::{Lanes, Quat, Real, V3};
-use crate::model::{BendingEdge, Model, Triangle};
-use crate::state::{EnvSpec, HealthEvent, HealthReason};
+use crate::model::Model;
+use crate::state::{EnvSpec, HealthEvent, SealEvent};
+use crate::tool::{ToolDrive, ToolState};
 use crate::trajectory::ToolTrajectory;
-use crate::Params;
+
+use assembly::{contact_and_bending_forces, membrane_forces};
+pub(crate) use seal::SealConstants;
+pub(crate) use snapshot::LaneSnapshot;
 
 type L<const W: usize> = Lanes<W>;
 
@@ -44,11 +53,26 @@ pub(crate) struct LaneParams<const W: usize> {
     gravity: L<W>,
 }
 
-/// Attachment spring of one cup particle: per-lane package vertex and rest length.
+/// Attachment spring of one cup particle (one element of its cup's lip): per-lane package
+/// vertex, rest length, whether it is sealed (1) or let go (0), and its filtered pull along the
+/// cup axis (N).
 #[derive(Clone, Copy)]
 pub(crate) struct LaneSpring<const W: usize> {
-    target: [u32; W],
-    rest: L<W>,
+    pub(crate) target: [u32; W],
+    pub(crate) rest: L<W>,
+    pub(crate) sealed: L<W>,
+    pub(crate) tension: L<W>,
+}
+
+/// Seal state of one cup in every lane.
+#[derive(Clone, Copy)]
+pub(crate) struct LaneCup<const W: usize> {
+    /// 1 while the cup holds the film, 0 once it let go (or never sealed).
+    pub(crate) attached: L<W>,
+    /// Lip elements (springs) still sealed.
+    pub(crate) sealed_count: L<W>,
+    /// Filtered force of the film on the cup (N, world).
+    pub(crate) load: V3<L<W>>,
 }
 
 /// The disc of every lane.
@@ -75,6 +99,9 @@ pub(crate) struct StepConstants {
     pub(crate) angular_damping: f32,
     pub(crate) max_particle_speed: f32,
     pub(crate) contact_refresh: u64,
+    pub(crate) seal: SealConstants,
+    /// Reach of the disc's centre beyond the package's particles before it counts as outside (m).
+    pub(crate) object_outside_margin: f32,
 }
 
 impl StepConstants {
@@ -99,6 +126,8 @@ impl StepConstants {
             angular_damping: c.integrator.angular_damping,
             max_particle_speed: c.integrator.max_particle_speed_m_s,
             contact_refresh: c.disc.contact_refresh_substeps as u64,
+            seal: SealConstants::new(model),
+            object_outside_margin: model.particle_radius + c.disc.radius_m,
         }
     }
 }
@@ -115,7 +144,12 @@ pub(crate) struct Block<const W: usize> {
     f2: Vec<V3<L<W>>>,
     x0: Vec<V3<L<W>>>,
     cup_offsets: Vec<V3<L<W>>>,
-    springs: Vec<LaneSpring<W>>,
+    pub(crate) springs: Vec<LaneSpring<W>>,
+    /// Per spring: its force on the cup particle this substep (scratch for the seal model).
+    spring_force: Vec<V3<L<W>>>,
+    pub(crate) cups: Vec<LaneCup<W>>,
+    /// Per lane: the cups' axis (from the cup face towards the film) in the tool frame.
+    cup_axis_local: V3<L<W>>,
     pub(crate) disc: LaneDisc<W>,
     disc_x0: V3<L<W>>,
     /// Per lane: where the disc is held during the rest (`None`: free), see `Placement::disc_hold`.
@@ -124,14 +158,17 @@ pub(crate) struct Block<const W: usize> {
     contact_point: Vec<V3<L<W>>>,
     contact_normal: Vec<V3<L<W>>>,
     params: LaneParams<W>,
-    tools: Vec<Arc<ToolTrajectory>>,
+    pub(crate) tools: Vec<ToolDrive>,
+    /// Per lane: substeps since the start of its episode (its own clock).
+    pub(crate) clock: [u64; W],
     /// 1.0 for lanes still simulated, 0.0 for frozen ones.
     pub(crate) active: L<W>,
     pub(crate) events: Vec<HealthEvent>,
+    pub(crate) seal_events: Vec<SealEvent>,
 }
 
 #[inline(always)]
-fn set3<const W: usize>(v: &mut V3<L<W>>, l: usize, a: [f32; 3]) {
+pub(crate) fn set3<const W: usize>(v: &mut V3<L<W>>, l: usize, a: [f32; 3]) {
     v.x.0[l] = a[0];
     v.y.0[l] = a[1];
     v.z.0[l] = a[2];
@@ -141,13 +178,8 @@ pub(crate) fn get3<const W: usize>(v: &V3<L<W>>, l: usize) -> [f32; 3] {
     [v.x.0[l], v.y.0[l], v.z.0[l]]
 }
 
-fn lane_params_set<const W: usize>(
-    p: &mut LaneParams<W>,
-    l: usize,
-    model: &Model,
-    params: &Params,
-    object_mass: f32,
-) {
+fn lane_params_set<const W: usize>(p: &mut LaneParams<W>, l: usize, model: &Model, spec: &EnvSpec) {
+    let params = &spec.params;
     let c = &model.config.contact;
     p.tri[0].0[l] = params.k_tri_e;
     p.tri[1].0[l] = params.k_tri_a;
@@ -178,7 +210,7 @@ fn lane_params_set<const W: usize>(
     p.disc_ground.mu.0[l] = 0.5 * (params.mu_con + c.ground_mu);
     p.inv_mass_package.0[l] = 1.0 / model.package_particle_mass;
     p.inv_mass_cup.0[l] = 1.0 / model.cup_particle_mass;
-    let disc = model.disc_mass(object_mass);
+    let disc = model.disc_mass_with_scale(spec.object_mass_kg, spec.disc_mass_scale);
     p.disc_mass.0[l] = disc.mass;
     set3(&mut p.disc_inertia, l, disc.inertia);
     p.gravity.0[l] = model.config.integrator.gravity_m_s2;
@@ -190,6 +222,7 @@ impl<const W: usize> Block<W> {
         let n = model.num_particles();
         let zero3 = V3::<L<W>>::zero();
         let zero = L::<W>::splat(0.0);
+        let one = L::<W>::splat(1.0);
         let zero_contact = ContactMaterial {
             ke: zero,
             kd: zero,
@@ -208,10 +241,22 @@ impl<const W: usize> Block<W> {
             springs: vec![
                 LaneSpring {
                     target: [0; W],
-                    rest: zero
+                    rest: zero,
+                    sealed: one,
+                    tension: zero,
                 };
                 model.num_cup
             ],
+            spring_force: vec![zero3; model.num_cup],
+            cups: vec![
+                LaneCup {
+                    attached: one,
+                    sealed_count: L::splat(model.cup_size as f32),
+                    load: zero3,
+                };
+                model.num_cups()
+            ],
+            cup_axis_local: zero3,
             disc: LaneDisc {
                 com: zero3,
                 q: Quat {
@@ -238,9 +283,14 @@ impl<const W: usize> Block<W> {
                 disc_inertia: zero3,
                 gravity: zero,
             },
-            tools: envs.iter().map(|&e| specs[e].trajectory.clone()).collect(),
-            active: L::splat(1.0),
+            tools: envs
+                .iter()
+                .map(|&e| ToolDrive::Trajectory(specs[e].trajectory.clone()))
+                .collect(),
+            clock: [0; W],
+            active: one,
             events: Vec::new(),
+            seal_events: Vec::new(),
         };
         for (l, &e) in envs.iter().enumerate() {
             block.init_lane(l, model, &specs[e]);
@@ -248,10 +298,59 @@ impl<const W: usize> Block<W> {
         block
     }
 
+    /// Lanes holding environment `env` (one, or several in a padded block).
+    fn lanes_of(&self, env: usize) -> impl Iterator<Item = usize> + '_ {
+        (0..W).filter(move |&l| self.envs[l] == env)
+    }
+
+    /// Restarts every lane holding `env` from `spec`: time 0, active, cups sealed anew.
+    pub(crate) fn reset_env(&mut self, env: usize, model: &Model, spec: &EnvSpec) {
+        for l in self.lanes_of(env).collect::<Vec<_>>() {
+            self.tools[l] = ToolDrive::Trajectory(spec.trajectory.clone());
+            self.clock[l] = 0;
+            self.active.0[l] = 1.0;
+            self.init_lane(l, model, spec);
+        }
+    }
+
+    /// The tool of lane `l` now (environment time plus `ahead` seconds).
+    pub(crate) fn tool_state(&self, l: usize, k: &StepConstants, ahead: f64) -> ToolState {
+        self.tools[l].state_at(self.clock[l] as f64 * k.dt64 + ahead, k.rest_time)
+    }
+
+    /// Replaces what drives the tool of every lane holding `env`.
+    pub(crate) fn set_drive(&mut self, env: usize, drive: &ToolDrive) {
+        for l in self.lanes_of(env).collect::<Vec<_>>() {
+            self.tools[l] = drive.clone();
+        }
+    }
+
+    /// Overwrites the positions of every particle of `env` (velocities unchanged).
+    pub(crate) fn set_positions(&mut self, env: usize, positions: &[[f32; 3]]) {
+        for l in self.lanes_of(env).collect::<Vec<_>>() {
+            for (x, p) in self.x.iter_mut().zip(positions) {
+                set3(x, l, *p);
+            }
+        }
+    }
+
     /// Places environment `spec` in lane `l`: positions, springs, cup offsets, disc, parameters.
     fn init_lane(&mut self, l: usize, model: &Model, spec: &EnvSpec) {
         let pl = &spec.placement;
         let cup_start = model.cup_start();
+        // The package (and the disc in it) turned by its yaw about the vertical through the cup point.
+        let (sin, cos) = pl.package_yaw_rad.sin_cos();
+        let yaw = |p: [f32; 3]| {
+            if pl.package_yaw_rad == 0.0 {
+                return p;
+            }
+            let (dx, dz) = (p[0] - pl.cup_point[0], p[2] - pl.cup_point[2]);
+            [
+                pl.cup_point[0] + cos * dx + sin * dz,
+                p[1],
+                pl.cup_point[2] - sin * dx + cos * dz,
+            ]
+        };
         for (i, off) in model.rest_offsets.iter().enumerate() {
             let anchor = if i < cup_start {
                 pl.package_origin
@@ -259,34 +358,10 @@ impl<const W: usize> Block<W> {
                 pl.cup_point
             };
             let p = [anchor[0] + off[0], anchor[1] + off[1], anchor[2] + off[2]];
+            let p = if i < cup_start { yaw(p) } else { p };
             set3(&mut self.x[i], l, p);
             set3(&mut self.x0[i], l, p);
             set3(&mut self.v[i], l, [0.0; 3]);
-        }
-        // Springs: each cup particle to its nearest upper-sheet particle (first minimum wins).
-        let upper = model.layer_size..model.num_package;
-        let mut lengths = Vec::with_capacity(model.num_cup);
-        for k in 0..model.num_cup {
-            let c = get3(&self.x[cup_start + k], l);
-            let (mut best, mut best_d2) = (upper.start, f32::INFINITY);
-            for j in upper.clone() {
-                let p = get3(&self.x[j], l);
-                let d2 = (c[0] - p[0]).powi(2) + (c[1] - p[1]).powi(2) + (c[2] - p[2]).powi(2);
-                if d2 < best_d2 {
-                    best = j;
-                    best_d2 = d2;
-                }
-            }
-            self.springs[k].target[l] = best as u32;
-            lengths.push(best_d2.sqrt());
-        }
-        let common = lengths.iter().copied().fold(f32::INFINITY, f32::min);
-        for (k, len) in lengths.iter().enumerate() {
-            self.springs[k].rest.0[l] = if model.config.cups.common_rest_length {
-                common
-            } else {
-                *len
-            };
         }
         // Cup offsets from the tool's first pose.
         let tool0 = spec.trajectory.pose_at(f64::NEG_INFINITY);
@@ -312,20 +387,35 @@ impl<const W: usize> Block<W> {
             };
             set3(&mut self.cup_offsets[k], l, [d.x, d.y, d.z]);
         }
-        set3(&mut self.disc.com, l, pl.disc_position);
-        set3(&mut self.disc_x0, l, pl.disc_position);
-        self.disc_hold[l] = pl.disc_hold;
-        set3(&mut self.disc.q.v, l, [0.0; 3]);
-        self.disc.q.w.0[l] = 1.0;
+        // The cups are built face down (world −y); their axis turns with the tool from here on.
+        let down = V3::new(0.0, -1.0, 0.0);
+        let axis = if model.config.cups.offsets_in_tool_frame {
+            q0.rotate_inv(down)
+        } else {
+            down
+        };
+        set3(&mut self.cup_axis_local, l, [axis.x, axis.y, axis.z]);
+        let disc_position = yaw(pl.disc_position);
+        set3(&mut self.disc.com, l, disc_position);
+        set3(&mut self.disc_x0, l, disc_position);
+        self.disc_hold[l] = pl.disc_hold.map(yaw);
+        let q = pl.disc_orientation;
+        let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
+        set3(
+            &mut self.disc.q.v,
+            l,
+            [q[0] / norm, q[1] / norm, q[2] / norm],
+        );
+        self.disc.q.w.0[l] = q[3] / norm;
         set3(&mut self.disc.v, l, [0.0; 3]);
         set3(&mut self.disc.w, l, [0.0; 3]);
-        lane_params_set(
-            &mut self.params,
-            l,
-            model,
-            &spec.params,
-            spec.object_mass_kg,
-        );
+        for i in 0..model.num_particles() {
+            set3(&mut self.contact_point[i], l, [0.0; 3]);
+            set3(&mut self.contact_normal[i], l, [0.0; 3]);
+        }
+        lane_params_set(&mut self.params, l, model, spec);
+        // Springs: each cup particle to its nearest upper-sheet particle (first minimum wins).
+        self.attach_cups_lane(l, model, 0.0, tool0.orientation.map(f64::from));
     }
 
     /// Bytes held by this block's arrays.
@@ -344,8 +434,9 @@ impl<const W: usize> Block<W> {
             .iter()
             .map(|a| a.capacity() * per_particle)
             .sum::<usize>()
-            + self.cup_offsets.capacity() * per_particle
+            + (self.cup_offsets.capacity() + self.spring_force.capacity()) * per_particle
             + self.springs.capacity() * std::mem::size_of::<LaneSpring<W>>()
+            + self.cups.capacity() * std::mem::size_of::<LaneCup<W>>()
             + std::mem::size_of::<Self>()
     }
 
@@ -358,32 +449,27 @@ impl<const W: usize> Block<W> {
         }
     }
 
-    /// Replaces the material parameters of every lane holding `env`.
-    pub(crate) fn set_params(
-        &mut self,
-        env: usize,
-        model: &Model,
-        params: &Params,
-        object_mass: f32,
-    ) {
+    /// Replaces the material parameters (and object mass) of every lane holding `env`.
+    pub(crate) fn set_params(&mut self, env: usize, model: &Model, spec: &EnvSpec) {
         for l in 0..W {
             if self.envs[l] == env {
-                lane_params_set(&mut self.params, l, model, params, object_mass);
+                lane_params_set(&mut self.params, l, model, spec);
             }
         }
     }
 
     /// Replaces the tool trajectory of every lane holding `env`.
     pub(crate) fn set_trajectory(&mut self, env: usize, trajectory: &Arc<ToolTrajectory>) {
-        for l in 0..W {
-            if self.envs[l] == env {
-                self.tools[l] = trajectory.clone();
-            }
-        }
+        self.set_drive(env, &ToolDrive::Trajectory(trajectory.clone()));
     }
 
-    /// Tool position, orientation and velocity of every lane at rollout time `t`.
-    fn tool_lanes(&self, t: f64, rest_time: f64) -> (V3<L<W>>, Quat<L<W>>, V3<L<W>>) {
+    /// Each lane's own time (s) plus `ahead`.
+    fn lane_times(&self, k: &StepConstants, ahead: f64) -> [f64; W] {
+        std::array::from_fn(|l| self.clock[l] as f64 * k.dt64 + ahead)
+    }
+
+    /// Tool position, orientation and velocity of every lane at its time `t[l]`.
+    fn tool_lanes(&self, t: &[f64; W], rest_time: f64) -> (V3<L<W>>, Quat<L<W>>, V3<L<W>>) {
         let mut p = V3::<L<W>>::zero();
         let mut q = Quat {
             v: V3::<L<W>>::zero(),
@@ -391,7 +477,7 @@ impl<const W: usize> Block<W> {
         };
         let mut vel = V3::<L<W>>::zero();
         for l in 0..W {
-            let pose = self.tools[l].pose_at(t - rest_time);
+            let pose = self.tools[l].state_at(t[l], rest_time).pose();
             set3(&mut p, l, pose.position);
             set3(
                 &mut q.v,
@@ -414,24 +500,24 @@ impl<const W: usize> Block<W> {
     /// of the rest, then still. Other lanes, and every lane after the rest, keep `com`, `v`.
     fn held_disc(
         &self,
-        t: f64,
+        t: &[f64; W],
         rest_time: f64,
         mut com: V3<L<W>>,
         mut v: V3<L<W>>,
     ) -> (V3<L<W>>, V3<L<W>>) {
-        if t > rest_time {
-            return (com, v);
-        }
         let travel = 0.5 * rest_time;
-        let u = (t / travel).min(1.0);
-        // Smoothstep: zero velocity at both ends of the path.
-        let shape = u * u * (3.0 - 2.0 * u);
-        let rate = if u < 1.0 {
-            6.0 * u * (1.0 - u) / travel
-        } else {
-            0.0
-        };
         for l in 0..W {
+            if t[l] > rest_time {
+                continue;
+            }
+            let u = (t[l] / travel).min(1.0);
+            // Smoothstep: zero velocity at both ends of the path.
+            let shape = u * u * (3.0 - 2.0 * u);
+            let rate = if u < 1.0 {
+                6.0 * u * (1.0 - u) / travel
+            } else {
+                0.0
+            };
             if let Some(target) = self.disc_hold[l] {
                 let start = get3(&self.disc_x0, l);
                 let at =
@@ -444,30 +530,36 @@ impl<const W: usize> Block<W> {
         (com, v)
     }
 
-    /// Advances `substeps` substeps starting at global substep `start`.
+    /// Advances every active lane by `substeps` substeps of its own clock.
     #[inline(always)]
     pub(crate) fn advance(
         &mut self,
         model: &Model,
         k: &StepConstants,
-        start: u64,
         substeps: u64,
         parallel: bool,
     ) {
-        // A block whose environments are all frozen or retired would only copy its state over.
-        if (0..W).all(|l| !self.real[l] || self.active.0[l] < 0.5) {
-            return;
-        }
-        for s in start..start + substeps {
-            self.substep(model, k, s, parallel);
-            if (s + 1).is_multiple_of(k.check_every) {
-                self.check_health(k, (s + 1) as f64 * k.dt64);
+        for _ in 0..substeps {
+            // A block whose environments are all frozen or retired would only copy its state over.
+            if (0..W).all(|l| !self.real[l] || self.active.0[l] < 0.5) {
+                return;
+            }
+            self.substep(model, k, parallel);
+            let mut due = [false; W];
+            for l in 0..W {
+                if self.active.0[l] > 0.5 {
+                    self.clock[l] += 1;
+                    due[l] = self.clock[l].is_multiple_of(k.check_every);
+                }
+            }
+            if due.iter().any(|&d| d) {
+                self.check_health(model, k, &due);
             }
         }
     }
 
     #[inline(always)]
-    fn substep(&mut self, model: &Model, k: &StepConstants, s: u64, parallel: bool) {
+    fn substep(&mut self, model: &Model, k: &StepConstants, parallel: bool) {
         let zero = L::<W>::splat(0.0);
         let half = L::<W>::splat(0.5);
         let dt = L::<W>::splat(k.dt);
@@ -478,8 +570,8 @@ impl<const W: usize> Block<W> {
         let p = self.params;
 
         // 1. Drive the cups (before forces, like the reference's `actuate_suction_cup`).
-        let t = s as f64 * k.dt64;
-        let (tp, tq, tv) = self.tool_lanes(t, k.rest_time);
+        let t = self.lane_times(k, 0.0);
+        let (tp, tq, tv) = self.tool_lanes(&t, k.rest_time);
         match k.drive {
             DriveMode::Servo => {
                 let (kp, kff) = (L::splat(k.kp), L::splat(k.kff));
@@ -491,7 +583,7 @@ impl<const W: usize> Block<W> {
                 }
             }
             DriveMode::Kinematic => {
-                let (np, nq, _) = self.tool_lanes(t + k.dt64, k.rest_time);
+                let (np, nq, _) = self.tool_lanes(&self.lane_times(k, k.dt64), k.rest_time);
                 for (c, off) in self.cup_offsets.iter().enumerate() {
                     let i = cup_start + c;
                     let target = tq.rotate(*off) + tp;
@@ -505,12 +597,17 @@ impl<const W: usize> Block<W> {
         // 2-6. Forces, in two independent halves summed per particle in a fixed order; a
         // single-environment batch computes the halves on two threads (same arithmetic).
         let disc = self.disc;
+        let refresh = self
+            .clock
+            .map(|c| c.is_multiple_of(k.contact_refresh) as u8 as f32);
+        let refresh = refresh.iter().any(|&r| r > 0.0).then_some(Lanes(refresh));
         let (x, v) = (&self.x[..], &self.v[..]);
         let (springs, f, f2) = (&self.springs[..], &mut self.f[..], &mut self.f2[..]);
+        let spring_force = &mut self.spring_force[..];
         let (cp, cn) = (&mut self.contact_point[..], &mut self.contact_normal[..]);
-        let mut membrane = move || membrane_forces(model, x, v, springs, &p, f);
+        let mut membrane = move || membrane_forces(model, x, v, springs, spring_force, &p, f);
         let mut others =
-            move || contact_and_bending_forces(model, k, s, x, v, &disc, &p, cp, cn, f2);
+            move || contact_and_bending_forces(model, k, refresh, x, v, &disc, &p, cp, cn, f2);
         let ((), (disc_f, disc_t)) = if parallel {
             rayon::join(membrane, others)
         } else {
@@ -536,7 +633,7 @@ impl<const W: usize> Block<W> {
         }
         .normalize();
         let w1 = w1 * (L::splat(1.0) - L::splat(k.angular_damping) * dt);
-        let (com1, v1) = self.held_disc(t + k.dt64, k.rest_time, com1, v1);
+        let (com1, v1) = self.held_disc(&self.lane_times(k, k.dt64), k.rest_time, com1, v1);
         self.disc = LaneDisc {
             com: keep(com1, disc.com),
             q: Quat {
@@ -569,53 +666,9 @@ impl<const W: usize> Block<W> {
             self.v[i] = keep(v1, vi);
             self.x[i] = keep(x1, self.x[i]);
         }
-    }
 
-    /// Flags and freezes lanes with non-finite or exploding state.
-    fn check_health(&mut self, k: &StepConstants, time: f64) {
-        let max_v2 = k.max_speed * k.max_speed;
-        let max_d2 = k.max_displacement * k.max_displacement;
-        let mut reason: [Option<HealthReason>; W] = [None; W];
-        let mut inspect = |x: &V3<L<W>>, v: &V3<L<W>>, x0: &V3<L<W>>| {
-            for (l, r) in reason.iter_mut().enumerate() {
-                let (p, u, p0) = (get3(x, l), get3(v, l), get3(x0, l));
-                let found = if p.iter().chain(&u).any(|c| !c.is_finite()) {
-                    Some(HealthReason::NonFinite)
-                } else if u.iter().map(|c| c * c).sum::<f32>() > max_v2 {
-                    Some(HealthReason::TooFast)
-                } else if (0..3).map(|c| (p[c] - p0[c]).powi(2)).sum::<f32>() > max_d2 {
-                    Some(HealthReason::TooFar)
-                } else {
-                    None
-                };
-                if r.is_none() {
-                    *r = found;
-                }
-            }
-        };
-        for i in 0..self.x.len() {
-            inspect(&self.x[i], &self.v[i], &self.x0[i]);
-        }
-        inspect(&self.disc.com, &self.disc.v, &self.disc_x0);
-        for l in 0..W {
-            let quat_ok = self.disc.q.w.0[l].is_finite()
-                && get3(&self.disc.q.v, l).iter().all(|c| c.is_finite());
-            let r = reason[l].or(if quat_ok {
-                None
-            } else {
-                Some(HealthReason::NonFinite)
-            });
-            if let (Some(reason), true) = (r, self.active.0[l] > 0.5) {
-                self.active.0[l] = 0.0;
-                if self.real[l] {
-                    self.events.push(HealthEvent {
-                        env: self.envs[l],
-                        reason,
-                        time,
-                    });
-                }
-            }
-        }
+        // 9. Seal loads and failures (take effect from the next substep).
+        self.update_seals(model, k, tq, &t);
     }
 }
 
@@ -624,7 +677,6 @@ pub(crate) fn advance_block<const W: usize>(
     block: &mut Block<W>,
     model: &Model,
     k: &StepConstants,
-    start: u64,
     substeps: u64,
     parallel: bool,
 ) {
@@ -632,11 +684,11 @@ pub(crate) fn advance_block<const W: usize>(
     {
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2, checked just above.
-            unsafe { advance_avx2(block, model, k, start, substeps, parallel) };
+            unsafe { advance_avx2(block, model, k, substeps, parallel) };
             return;
         }
     }
-    block.advance(model, k, start, substeps, parallel);
+    block.advance(model, k, substeps, parallel);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -645,321 +697,8 @@ unsafe fn advance_avx2<const W: usize>(
     block: &mut Block<W>,
     model: &Model,
     k: &StepConstants,
-    start: u64,
     substeps: u64,
     parallel: bool,
 ) {
-    block.advance(model, k, start, substeps, parallel);
-}
-
-/// Attachment springs, membrane triangles and part of the bending, accumulated into `f`
-/// (cleared first).
-#[inline(always)]
-fn membrane_forces<const W: usize>(
-    model: &Model,
-    x: &[V3<L<W>>],
-    v: &[V3<L<W>>],
-    springs: &[LaneSpring<W>],
-    p: &LaneParams<W>,
-    f: &mut [V3<L<W>>],
-) {
-    let cup_start = model.cup_start();
-    for fi in f.iter_mut() {
-        *fi = V3::zero();
-    }
-
-    // 2. Attachment springs (per-lane package vertex: gather/scatter by lane).
-    for (c, spring) in springs.iter().enumerate() {
-        let i = cup_start + c;
-        let mut xj = V3::<L<W>>::zero();
-        let mut vj = V3::<L<W>>::zero();
-        for l in 0..W {
-            let j = spring.target[l] as usize;
-            set3(&mut xj, l, get3(&x[j], l));
-            set3(&mut vj, l, get3(&v[j], l));
-        }
-        let fi = forces::spring(x[i], xj, v[i], vj, spring.rest, p.spring[0], p.spring[1]);
-        f[i] += fi;
-        for l in 0..W {
-            let j = spring.target[l] as usize;
-            let g = get3(&fi, l);
-            f[j].x.0[l] -= g[0];
-            f[j].y.0[l] -= g[1];
-            f[j].z.0[l] -= g[2];
-        }
-    }
-
-    // 3. Membrane triangles.
-    for (tris, mat) in [
-        (&model.package_triangles[..], p.tri),
-        (&model.cup_triangles[..], p.cup_tri),
-    ] {
-        triangle_forces(tris, mat, x, v, f);
-    }
-
-    // 4. Bending, first part of the package edges.
-    let split = bending_split(model);
-    bending_forces(&model.package_edges[..split], p.edge, x, v, f);
-}
-/// Bending of `edges` with material `mat` (ke, kd), accumulated into `f`.
-#[inline(always)]
-fn bending_forces<const W: usize>(
-    edges: &[BendingEdge],
-    mat: [L<W>; 2],
-    x: &[V3<L<W>>],
-    v: &[V3<L<W>>],
-    f: &mut [V3<L<W>>],
-) {
-    if W == 1 {
-        return bending_across_elements(edges, [mat[0].0[0], mat[1].0[0]], x, v, f);
-    }
-    for e in edges {
-        let id = e.idx.map(|i| i as usize);
-        let rest = L::splat(e.rest_angle);
-        let fs = forces::bending(id.map(|i| x[i]), id.map(|i| v[i]), rest, mat[0], mat[1]);
-        for (q, fq) in id.iter().zip(fs) {
-            f[*q] += fq;
-        }
-    }
-}
-
-/// Membrane triangles with material `mat` (k_mu, k_lambda, k_damp), accumulated into `f`.
-#[inline(always)]
-fn triangle_forces<const W: usize>(
-    tris: &[Triangle],
-    mat: [L<W>; 3],
-    x: &[V3<L<W>>],
-    v: &[V3<L<W>>],
-    f: &mut [V3<L<W>>],
-) {
-    if W == 1 {
-        return triangles_across_elements(tris, mat.map(|m| m.0[0]), x, v, f);
-    }
-    for tri in tris {
-        let [a, b, c] = tri.idx.map(|i| i as usize);
-        let dm = tri.rest.dm.map(|row| row.map(L::splat));
-        let inv_area = L::splat(tri.rest.inv_rest_area());
-        let fs = forces::triangle(
-            [x[a], x[b], x[c]],
-            [v[a], v[b], v[c]],
-            dm,
-            inv_area,
-            mat[0],
-            mat[1],
-            mat[2],
-        );
-        f[a] += fs[0];
-        f[b] += fs[1];
-        f[c] += fs[2];
-    }
-}
-
-/// Elements processed together by the single-environment path.
-const ELEMENT_LANES: usize = 8;
-type E8 = Lanes<ELEMENT_LANES>;
-
-/// Single-environment blocks (lane 0 only): triangles [`ELEMENT_LANES`] at a time, SIMD across
-/// elements. Each element's arithmetic is the same as in the per-environment path and the forces
-/// are added in the same element order, so results are bit-identical.
-#[inline(always)]
-fn triangles_across_elements<const W: usize>(
-    tris: &[Triangle],
-    mat: [f32; 3],
-    x: &[V3<L<W>>],
-    v: &[V3<L<W>>],
-    f: &mut [V3<L<W>>],
-) {
-    let mat = mat.map(E8::splat);
-    for chunk in tris.chunks(ELEMENT_LANES) {
-        let mut xs = [V3::<E8>::zero(); 3];
-        let mut vs = [V3::<E8>::zero(); 3];
-        let mut dm = [[E8::splat(0.0); 2]; 2];
-        let mut inv_area = E8::splat(1.0);
-        for e in 0..ELEMENT_LANES {
-            // Short chunks repeat their last element; those lanes are not added below.
-            let tri = &chunk[e.min(chunk.len() - 1)];
-            for (corner, &i) in tri.idx.iter().enumerate() {
-                set3(&mut xs[corner], e, get3(&x[i as usize], 0));
-                set3(&mut vs[corner], e, get3(&v[i as usize], 0));
-            }
-            for (r, row) in tri.rest.dm.iter().enumerate() {
-                for (c, value) in row.iter().enumerate() {
-                    dm[r][c].0[e] = *value;
-                }
-            }
-            inv_area.0[e] = tri.rest.inv_rest_area();
-        }
-        let fs = forces::triangle(xs, vs, dm, inv_area, mat[0], mat[1], mat[2]);
-        for (e, tri) in chunk.iter().enumerate() {
-            for (corner, &i) in tri.idx.iter().enumerate() {
-                add_lane(&mut f[i as usize], get3(&fs[corner], e));
-            }
-        }
-    }
-}
-
-/// Single-environment blocks: bending elements [`ELEMENT_LANES`] at a time (see
-/// [`triangles_across_elements`]).
-#[inline(always)]
-fn bending_across_elements<const W: usize>(
-    edges: &[BendingEdge],
-    mat: [f32; 2],
-    x: &[V3<L<W>>],
-    v: &[V3<L<W>>],
-    f: &mut [V3<L<W>>],
-) {
-    let mat = mat.map(E8::splat);
-    for chunk in edges.chunks(ELEMENT_LANES) {
-        let mut xs = [V3::<E8>::zero(); 4];
-        let mut vs = [V3::<E8>::zero(); 4];
-        let mut rest = E8::splat(0.0);
-        for e in 0..ELEMENT_LANES {
-            let edge = &chunk[e.min(chunk.len() - 1)];
-            for (corner, &i) in edge.idx.iter().enumerate() {
-                set3(&mut xs[corner], e, get3(&x[i as usize], 0));
-                set3(&mut vs[corner], e, get3(&v[i as usize], 0));
-            }
-            rest.0[e] = edge.rest_angle;
-        }
-        let fs = forces::bending(xs, vs, rest, mat[0], mat[1]);
-        for (e, edge) in chunk.iter().enumerate() {
-            for (corner, &i) in edge.idx.iter().enumerate() {
-                add_lane(&mut f[i as usize], get3(&fs[corner], e));
-            }
-        }
-    }
-}
-
-/// `f += g` on lane 0, component by component (the same additions as `V3 += V3`).
-#[inline(always)]
-fn add_lane<const W: usize>(f: &mut V3<L<W>>, g: [f32; 3]) {
-    f.x.0[0] += g[0];
-    f.y.0[0] += g[1];
-    f.z.0[0] += g[2];
-}
-
-/// Package bending edges before this index go with the membrane half of the force evaluation,
-/// the rest with the contact half (balances the two threads of a single-environment batch).
-fn bending_split(model: &Model) -> usize {
-    model.package_edges.len() * 3 / 8
-}
-
-/// The rest of the bending, ground and disc contacts, accumulated into `f` (cleared first). Returns the force
-/// and torque on the disc.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn contact_and_bending_forces<const W: usize>(
-    model: &Model,
-    k: &StepConstants,
-    s: u64,
-    x: &[V3<L<W>>],
-    v: &[V3<L<W>>],
-    disc: &LaneDisc<W>,
-    p: &LaneParams<W>,
-    contact_point: &mut [V3<L<W>>],
-    contact_normal: &mut [V3<L<W>>],
-    f: &mut [V3<L<W>>],
-) -> (V3<L<W>>, V3<L<W>>) {
-    let zero = L::<W>::splat(0.0);
-    let n = model.num_particles();
-    let cup_start = model.cup_start();
-    let disc = *disc;
-    for fi in f.iter_mut() {
-        *fi = V3::zero();
-    }
-    // 4. Bending (the remaining package edges, then the cups).
-    let split = bending_split(model);
-    bending_forces(&model.package_edges[split..], p.edge, x, v, f);
-    let cup_edge = [
-        L::splat(model.config.cups.edge_ke),
-        L::splat(model.config.cups.edge_kd),
-    ];
-    bending_forces(&model.cup_edges, cup_edge, x, v, f);
-
-    // 5. Particle-ground contact.
-    let radius = model.particle_radius;
-    let rad = L::<W>::splat(radius);
-    let ground = ContactMaterial {
-        ke: L::splat(k.ground.ke),
-        kd: L::splat(k.ground.kd),
-        kf: L::splat(k.ground.kf),
-        mu: L::splat(k.ground.mu),
-    };
-    for i in 0..n {
-        if x[i].y.0.iter().all(|&y| y >= radius) {
-            continue;
-        }
-        let fg = forces::particle_ground(x[i], v[i], rad, ground);
-        f[i] = V3::select_lt(x[i].y - rad, zero, f[i] + fg, f[i]);
-    }
-
-    // 6. Disc: ground contact at its rim points, then particle contacts.
-    let mut disc_f = V3::<L<W>>::zero();
-    let mut disc_t = V3::<L<W>>::zero();
-    let shape_thickness = L::splat(model.config.disc.shape_thickness_m);
-    for rp in &model.disc.rim_points {
-        let r = disc.q.rotate(V3::splat(*rp));
-        let point = disc.com + r;
-        if point
-            .y
-            .0
-            .iter()
-            .all(|&y| y >= model.config.disc.shape_thickness_m)
-        {
-            continue;
-        }
-        let vel = disc.v + disc.w.cross(r);
-        let fr = forces::rigid_ground(point, vel, shape_thickness, p.disc_ground);
-        let touching = point.y - shape_thickness;
-        disc_f = V3::select_lt(touching, zero, disc_f + fr, disc_f);
-        disc_t = V3::select_lt(touching, zero, disc_t + r.cross(fr), disc_t);
-    }
-    let (dr, dh) = (model.disc.radius, model.disc.half_height);
-    if s.is_multiple_of(k.contact_refresh) {
-        // Warp's `collide()`: closest point (body frame) and normal (world), frozen until
-        // the next refresh.
-        let (disc_r, disc_h) = (L::splat(dr), L::splat(dh));
-        for i in 0..n {
-            let local = disc.q.rotate_inv(x[i] - disc.com);
-            let (d, n_local) = forces::cylinder_distance(local, disc_r, disc_h);
-            contact_point[i] = local - n_local * d;
-            contact_normal[i] = disc.q.rotate(n_local);
-        }
-    }
-    // Only particles that can touch the disc (bounding sphere) are evaluated; beyond it a
-    // frozen contact plane could only produce a spurious long-range force.
-    let reach = (dr * dr + dh * dh).sqrt() + radius;
-    let reach2 = reach * reach;
-    let colliding = if model.config.cups.collide_with_disc {
-        n
-    } else {
-        cup_start
-    };
-    for i in 0..colliding {
-        let rel = x[i] - disc.com;
-        let dist2 = rel.dot(rel);
-        if dist2.0.iter().all(|&d| d > reach2) {
-            continue;
-        }
-        let normal = contact_normal[i];
-        let bx = disc.com + disc.q.rotate(contact_point[i]);
-        let (fp, arm) = forces::particle_disc(
-            x[i],
-            v[i],
-            rad,
-            normal,
-            bx,
-            disc.com,
-            disc.v,
-            disc.w,
-            p.disc_contact,
-        );
-        let gap = normal.dot(x[i] - bx) - rad;
-        let near = L::select_lt(L::splat(reach2), dist2, zero, L::splat(1.0));
-        let gap = L::select_lt(zero, near, gap, L::splat(1.0));
-        f[i] = V3::select_lt(zero, gap, f[i], f[i] + fp);
-        disc_f = V3::select_lt(zero, gap, disc_f, disc_f - fp);
-        disc_t = V3::select_lt(zero, gap, disc_t, disc_t - arm.cross(fp));
-    }
-    (disc_f, disc_t)
+    block.advance(model, k, substeps, parallel);
 }

@@ -1,0 +1,460 @@
+//! The suction seal of every cup (see [`crate::config::SealConfig`] for the model): loading at
+//! attach time, filtered loads every substep, and peeling, pull-off and sliding.
+
+use glam::{DQuat, DVec3};
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+
+use crate::math::{Quat, Real, V3};
+use crate::model::Model;
+use crate::state::{CupLoad, NoSealReason, SealEvent, SealEventKind};
+
+use super::{get3, Block, StepConstants, L};
+
+/// Seal quantities fixed for a batch.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SealConstants {
+    pub(crate) enabled: bool,
+    /// Low-pass filter weight per substep, dt / (τ + dt).
+    pub(crate) filter: f32,
+    /// Vacuum force of a fully sealed cup, Δp·π·r² (N).
+    pub(crate) full_capacity: f32,
+    /// Pull a lip element holds before it peels (N).
+    pub(crate) element_strength: f32,
+    pub(crate) friction: f32,
+    pub(crate) min_sealed_fraction: f32,
+}
+
+impl SealConstants {
+    pub(crate) fn new(model: &Model) -> Self {
+        let s = &model.config.seal;
+        let dt = model.config.dt();
+        let full_capacity = s.vacuum_kpa * 1e3 * std::f32::consts::PI * s.lip_radius_m.powi(2);
+        SealConstants {
+            enabled: s.enabled,
+            filter: dt / (s.load_filter_s + dt),
+            full_capacity,
+            element_strength: s.lip_strength_ratio * full_capacity / model.cup_size as f32,
+            friction: s.friction,
+            min_sealed_fraction: s.min_sealed_fraction,
+        }
+    }
+
+    /// A cup's load as reported: normal and shear parts of the film's force `force` on the cup
+    /// along `axis`, its capacity and utilisation.
+    pub(crate) fn cup_load(
+        &self,
+        attached: bool,
+        sealed_fraction: f32,
+        force: [f32; 3],
+        axis: [f32; 3],
+    ) -> CupLoad {
+        let normal = force[0] * axis[0] + force[1] * axis[1] + force[2] * axis[2];
+        let shear = (0..3)
+            .map(|c| (force[c] - normal * axis[c]).powi(2))
+            .sum::<f32>()
+            .sqrt();
+        let capacity = self.full_capacity * sealed_fraction;
+        let clamp = self.friction * (capacity - normal);
+        let pull = if capacity > 0.0 {
+            normal / capacity
+        } else {
+            f32::INFINITY
+        };
+        let slide = if clamp > 0.0 {
+            shear / clamp
+        } else {
+            f32::INFINITY
+        };
+        CupLoad {
+            attached,
+            normal_n: normal,
+            shear_n: shear,
+            capacity_n: capacity,
+            sealed_fraction,
+            utilisation: if attached { pull.max(slide) } else { 0.0 },
+        }
+    }
+}
+
+impl<const W: usize> Block<W> {
+    /// The cup axis of every lane under tool orientation `tq`.
+    pub(super) fn cup_axes(&self, tq: Quat<L<W>>) -> V3<L<W>> {
+        tq.rotate(self.cup_axis_local)
+    }
+
+    /// Filters the cup and lip loads of this substep and, with the seal model on, lets go of
+    /// the lip elements and cups beyond their limits (from the end of the rest period on: the
+    /// rest settles a package built flat, and its transient is not part of a pick). `tq` is the
+    /// tool orientation of each lane and `t` its time at the start of the substep.
+    pub(super) fn update_seals(
+        &mut self,
+        model: &Model,
+        k: &StepConstants,
+        tq: Quat<L<W>>,
+        t: &[f64; W],
+    ) {
+        let seal = &k.seal;
+        let alpha = L::<W>::splat(seal.filter);
+        let axis = self.cup_axes(tq);
+        let half = L::<W>::splat(0.5);
+        let active = self.active;
+        let cup_size = model.cup_size;
+        for (c, cup) in self.cups.iter_mut().enumerate() {
+            let mut sum = V3::<L<W>>::zero();
+            for s in c * cup_size..(c + 1) * cup_size {
+                let f = self.spring_force[s];
+                let spring = &mut self.springs[s];
+                let tension = spring.tension + (f.dot(axis) - spring.tension) * alpha;
+                spring.tension = L::select_lt(half, active, tension, spring.tension);
+                sum += f;
+            }
+            let load = cup.load + (sum - cup.load) * alpha;
+            cup.load = V3::select_lt(half, active, load, cup.load);
+        }
+        if !seal.enabled {
+            return;
+        }
+        for l in 0..W {
+            // The rest period settles a package built flat: its transient is not a pick.
+            if self.active.0[l] < 0.5 || t[l] < k.rest_time {
+                continue;
+            }
+            let lane_axis = get3(&axis, l);
+            let mut lost_any = false;
+            for c in 0..self.cups.len() {
+                if self.cups[c].attached.0[l] < 0.5 {
+                    continue;
+                }
+                // Peeling: lip elements pulled beyond their strength let go one by one.
+                let mut sealed = self.cups[c].sealed_count.0[l];
+                for s in c * cup_size..(c + 1) * cup_size {
+                    let spring = &mut self.springs[s];
+                    if spring.sealed.0[l] > 0.5 && spring.tension.0[l] > seal.element_strength {
+                        spring.sealed.0[l] = 0.0;
+                        sealed -= 1.0;
+                    }
+                }
+                self.cups[c].sealed_count.0[l] = sealed;
+                let fraction = sealed / cup_size as f32;
+                let load = seal.cup_load(true, fraction, get3(&self.cups[c].load, l), lane_axis);
+                let failure = if fraction < seal.min_sealed_fraction {
+                    Some(SealEventKind::Peeled)
+                } else if load.normal_n > load.capacity_n {
+                    Some(SealEventKind::PulledOff)
+                } else if load.shear_n > seal.friction * (load.capacity_n - load.normal_n) {
+                    Some(SealEventKind::Slid)
+                } else {
+                    None
+                };
+                if let Some(kind) = failure {
+                    self.detach_cup(l, c, cup_size);
+                    lost_any = true;
+                    self.push_seal_event(l, Some(c), kind, t[l], load);
+                }
+            }
+            if lost_any && self.attached_cups(l) == 0 {
+                self.push_seal_event(l, None, SealEventKind::Dropped, t[l], CupLoad::default());
+            }
+        }
+    }
+
+    fn push_seal_event(
+        &mut self,
+        l: usize,
+        cup: Option<usize>,
+        kind: SealEventKind,
+        time: f64,
+        load: CupLoad,
+    ) {
+        if self.real[l] {
+            self.seal_events.push(SealEvent {
+                env: self.envs[l],
+                cup,
+                kind,
+                time,
+                load,
+            });
+        }
+    }
+
+    fn detach_cup(&mut self, l: usize, c: usize, cup_size: usize) {
+        let cup = &mut self.cups[c];
+        cup.attached.0[l] = 0.0;
+        cup.sealed_count.0[l] = 0.0;
+        for spring in &mut self.springs[c * cup_size..(c + 1) * cup_size] {
+            spring.sealed.0[l] = 0.0;
+        }
+    }
+
+    /// Cups of lane `l` still holding the film.
+    pub(crate) fn attached_cups(&self, l: usize) -> u32 {
+        self.cups.iter().filter(|c| c.attached.0[l] > 0.5).count() as u32
+    }
+
+    /// Attaches (seals) the cups of lane `l` to the film as it is now: each cup particle's spring
+    /// goes to its nearest upper-sheet particle with its current length as rest length (or the
+    /// shortest one, `cups.common_rest_length`), loads start at zero, and with the seal model on
+    /// a cup whose film is too far, tilted or folded does not seal (reported at time `time`).
+    /// `tool_orientation` is the tool's orientation now.
+    pub(crate) fn attach_cups_lane(
+        &mut self,
+        l: usize,
+        model: &Model,
+        time: f64,
+        tool_orientation: [f64; 4],
+    ) {
+        let cup_start = model.cup_start();
+        let upper = model.layer_size..model.num_package;
+        let mut lengths = Vec::with_capacity(model.num_cup);
+        for k in 0..model.num_cup {
+            let c = get3(&self.x[cup_start + k], l);
+            let (mut best, mut best_d2) = (upper.start, f32::INFINITY);
+            for j in upper.clone() {
+                let p = get3(&self.x[j], l);
+                let d2 = (c[0] - p[0]).powi(2) + (c[1] - p[1]).powi(2) + (c[2] - p[2]).powi(2);
+                if d2 < best_d2 {
+                    best = j;
+                    best_d2 = d2;
+                }
+            }
+            self.springs[k].target[l] = best as u32;
+            lengths.push(best_d2.sqrt());
+        }
+        let common = lengths.iter().copied().fold(f32::INFINITY, f32::min);
+        for (k, len) in lengths.iter().enumerate() {
+            let spring = &mut self.springs[k];
+            spring.rest.0[l] = if model.config.cups.common_rest_length {
+                common
+            } else {
+                *len
+            };
+            spring.sealed.0[l] = 1.0;
+            spring.tension.0[l] = 0.0;
+        }
+        let cup_size = model.cup_size;
+        for c in 0..model.num_cups() {
+            let cup = &mut self.cups[c];
+            cup.attached.0[l] = 1.0;
+            cup.sealed_count.0[l] = cup_size as f32;
+            for comp in [&mut cup.load.x, &mut cup.load.y, &mut cup.load.z] {
+                comp.0[l] = 0.0;
+            }
+        }
+        if !model.config.seal.enabled {
+            return;
+        }
+        let local = get3(&self.cup_axis_local, l).map(f64::from);
+        let axis = DQuat::from_array(tool_orientation) * DVec3::from(local);
+        let axis = Vector3::new(axis.x, axis.y, axis.z);
+        let mut any = false;
+        for c in 0..model.num_cups() {
+            match self.loading_check(l, model, c, axis) {
+                None => any = true,
+                Some(reason) => {
+                    self.detach_cup(l, c, cup_size);
+                    let load = CupLoad::default();
+                    self.push_seal_event(l, Some(c), SealEventKind::NotSealed(reason), time, load);
+                }
+            }
+        }
+        if !any {
+            self.push_seal_event(l, None, SealEventKind::Dropped, time, CupLoad::default());
+        }
+    }
+
+    /// Why cup `c` of lane `l` cannot seal on the film as it is now, if it cannot: the film's
+    /// plane under the lip (least squares through the particles its springs reach) must be within
+    /// `max_gap` of every lip particle, tilted at most `max_tilt_deg` from the cup face, and the
+    /// film may deviate at most `max_fold` from that plane.
+    fn loading_check(
+        &self,
+        l: usize,
+        model: &Model,
+        c: usize,
+        axis: Vector3<f64>,
+    ) -> Option<NoSealReason> {
+        let seal = &model.config.seal;
+        let cup_size = model.cup_size;
+        let cup_start = model.cup_start() + c * cup_size;
+        let mut targets: Vec<usize> = (c * cup_size..(c + 1) * cup_size)
+            .map(|s| self.springs[s].target[l] as usize)
+            .collect();
+        targets.sort_unstable();
+        targets.dedup();
+        let point = |i: usize| {
+            let p = get3(&self.x[i], l);
+            Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+        };
+        let centre = targets.iter().map(|&i| point(i)).sum::<Vector3<f64>>() / targets.len() as f64;
+        let mut cov = Matrix3::<f64>::zeros();
+        for &i in &targets {
+            let d = point(i) - centre;
+            cov += d * d.transpose();
+        }
+        // The plane's normal is the direction of least spread (fewer than 3 distinct points
+        // leave it undetermined: then the cup face's own axis is used).
+        let normal = if targets.len() >= 3 {
+            let eig = SymmetricEigen::new(cov);
+            let k = eig.eigenvalues.imin();
+            eig.eigenvectors.column(k).into_owned()
+        } else {
+            axis
+        };
+        let fold = targets
+            .iter()
+            .map(|&i| (point(i) - centre).dot(&normal).abs())
+            .fold(0.0, f64::max);
+        let tilt = normal.dot(&axis).abs().min(1.0).acos().to_degrees();
+        let gap = (cup_start..cup_start + cup_size)
+            .map(|i| (point(i) - centre).dot(&normal).abs())
+            .fold(0.0, f64::max);
+        if gap > seal.max_gap_m as f64 {
+            Some(NoSealReason::Gap(gap as f32))
+        } else if tilt > seal.max_tilt_deg as f64 {
+            Some(NoSealReason::Tilt(tilt as f32))
+        } else if fold > seal.max_fold_m as f64 {
+            Some(NoSealReason::Fold(fold as f32))
+        } else {
+            None
+        }
+    }
+
+    /// The loads of every cup of lane `l`, written to `out` (one entry per cup).
+    pub(crate) fn read_cup_loads(&self, l: usize, k: &StepConstants, out: &mut [CupLoad]) {
+        let tool = self.tools[l].state_at(self.clock[l] as f64 * k.dt64, k.rest_time);
+        let q = tool.orientation;
+        let q = Quat {
+            v: V3::new(q[0] as f32, q[1] as f32, q[2] as f32),
+            w: q[3] as f32,
+        };
+        let axis = q.rotate(V3::new(
+            self.cup_axis_local.x.0[l],
+            self.cup_axis_local.y.0[l],
+            self.cup_axis_local.z.0[l],
+        ));
+        let axis = [axis.x, axis.y, axis.z];
+        let cup_size = self.springs.len() / self.cups.len();
+        for (cup, slot) in self.cups.iter().zip(out.iter_mut()) {
+            let attached = cup.attached.0[l] > 0.5;
+            let fraction = cup.sealed_count.0[l] / cup_size as f32;
+            *slot = k
+                .seal
+                .cup_load(attached, fraction, get3(&cup.load, l), axis);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::math::Lanes;
+    use crate::{EnvSpec, Placement, SceneConfig, ToolTrajectory};
+
+    /// A one-lane block of the physical scene with the seal on, its clock past the rest.
+    fn block() -> (Model, Block<1>) {
+        let mut c = SceneConfig::preset("physical").unwrap();
+        c.package.grid = [6, 7];
+        c.seal.enabled = true;
+        let model = Model::new(&c).unwrap();
+        let cup = [0.15, 0.51, 0.127];
+        let spec = EnvSpec {
+            placement: Placement::new([0.0, 0.5, 0.0], cup, [0.15, 0.5, 0.127]),
+            params: c.params,
+            object_mass_kg: 0.5,
+            disc_mass_scale: None,
+            trajectory: Arc::new(ToolTrajectory::hold(
+                cup.map(f64::from),
+                [0.0, 0.0, 0.0, 1.0],
+            )),
+        };
+        let mut b = Block::<1>::new(&model, &[spec], [0], [true]);
+        b.clock[0] = 2 * (c.cups.rest_time_s as f64 / c.dt() as f64) as u64;
+        (model, b)
+    }
+
+    /// Applies `per_spring(s)` (force of the film on each cup particle) for 0.1 s of substeps
+    /// (ten filter time constants).
+    fn load(model: &Model, b: &mut Block<1>, per_spring: impl Fn(usize) -> [f32; 3]) {
+        let k = StepConstants::new(model);
+        let level = Quat {
+            v: V3::zero(),
+            w: Lanes([1.0]),
+        };
+        for _ in 0..(0.1 / k.dt64) as usize {
+            for (s, f) in b.spring_force.iter_mut().enumerate() {
+                let g = per_spring(s);
+                *f = V3::new(Lanes([g[0]]), Lanes([g[1]]), Lanes([g[2]]));
+            }
+            let t = [b.clock[0] as f64 * k.dt64];
+            b.update_seals(model, &k, level, &t);
+        }
+    }
+
+    #[test]
+    fn seal_law_matches_the_hand_computation() {
+        let (model, mut b) = block();
+        let n = model.cup_size as f32;
+        // V = dp * pi * r^2 = 10 kPa * pi * (0.02 m)^2 = 12.566 N per cup; mu = 0.5; a lip
+        // element peels beyond 3 V / 24.
+        let v = 10e3 * std::f32::consts::PI * 0.02f32.powi(2);
+        let cup_of = |s: usize| s / model.cup_size;
+        // Cup 0 pulled straight off (the cup axis is world -y: pulling down is tension) with
+        // 0.95 V, cup 1 at 0.5 V normal and 0.2 V shear (friction limit 0.5 (V - 0.5 V) = 0.25 V),
+        // cup 2 at 0.5 V with one lip element carrying 0.2 V (> 3 V / 24 = 0.125 V).
+        let first = |s: usize| match cup_of(s) {
+            0 => [0.0, -0.95 * v / n, 0.0],
+            1 => [0.2 * v / n, -0.5 * v / n, 0.0],
+            2 if s % model.cup_size == 5 => [0.0, -0.2 * v, 0.0],
+            2 => [0.0, -0.3 * v / (n - 1.0), 0.0],
+            _ => [0.0; 3],
+        };
+        load(&model, &mut b, first);
+        assert!(b.seal_events.is_empty(), "{:?}", b.seal_events);
+        let k = StepConstants::new(&model);
+        let mut loads = [CupLoad::default(); 4];
+        b.read_cup_loads(0, &k, &mut loads);
+        assert!((loads[0].utilisation - 0.95).abs() < 1e-3, "{loads:?}");
+        assert!(
+            (loads[1].utilisation - 0.2 / 0.25).abs() < 1e-3,
+            "{loads:?}"
+        );
+        // The peeled element took 1/24 of cup 2's area with it.
+        assert_eq!(loads[2].sealed_fraction, 23.0 / 24.0);
+        assert!((loads[2].capacity_n - v * 23.0 / 24.0).abs() < 1e-4);
+        assert!(loads[2].attached && loads[3].attached);
+        // Now 1.05 V on cup 0 and 0.3 V shear on cup 1: both let go, at their limits.
+        let second = |s: usize| match cup_of(s) {
+            0 => [0.0, -1.05 * v / n, 0.0],
+            1 => [0.3 * v / n, -0.5 * v / n, 0.0],
+            _ => first(s),
+        };
+        load(&model, &mut b, second);
+        let kinds: Vec<_> = b.seal_events.iter().map(|e| (e.cup, e.kind)).collect();
+        assert_eq!(
+            kinds,
+            [
+                (Some(0), SealEventKind::PulledOff),
+                (Some(1), SealEventKind::Slid)
+            ],
+            "{:?}",
+            b.seal_events
+        );
+        let pulled = b.seal_events[0].load;
+        assert!(
+            pulled.normal_n > v && pulled.normal_n < 1.001 * v,
+            "{pulled:?}"
+        );
+        let slid = b.seal_events[1].load;
+        assert!(
+            slid.shear_n > 0.25 * v && slid.shear_n < 0.2505 * v,
+            "{slid:?}"
+        );
+        // A cup that let go transmits nothing from then on and reads as detached.
+        assert_eq!(b.springs[0].sealed.0[0], 0.0);
+        b.read_cup_loads(0, &k, &mut loads);
+        assert!(!loads[0].attached && loads[0].utilisation == 0.0);
+        assert_eq!(b.attached_cups(0), 2);
+    }
+}
