@@ -1252,6 +1252,57 @@ mod tests {
     }
 
     #[test]
+    fn the_robot_transform_is_estimated_from_the_tool_body() {
+        // The tool of the synthetic take moves on a helix; the robot file holds the same motion
+        // in a robot frame with z up, shifted by (0.4, 0.15, 0) (packages-v1's frames).
+        let mut take = motive::parse_take(&labelled_take(), Path::new("lab.csv")).unwrap();
+        let helix = |k: usize| {
+            let a = k as f64 / 59.0 * std::f64::consts::TAU;
+            [0.1 * a.cos(), 0.05 * k as f64 / 59.0, 0.1 * a.sin()]
+        };
+        for (k, p) in take.rigid_bodies[0].position.iter_mut().enumerate() {
+            *p = Some(helix(k));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("lab_robot.csv");
+        let mut text = crate::robot::ROBOT_HEADER.join(",") + "\n";
+        for (k, t) in take.time.iter().enumerate() {
+            let p = helix(k);
+            // p_robot = R^T p_mocap + o, with R taking robot z (up) to mocap y.
+            let robot = [p[0] + 0.4, -p[2] + 0.15, p[1]];
+            text += &format!(
+                "{t},{},{},{},0,0,0,1,0,0,0,0,0,0,0,0,0\n",
+                robot[0], robot[1], robot[2]
+            );
+        }
+        std::fs::write(&path, text).unwrap();
+        let robot = read_robot(&path).unwrap();
+        let mut config = with_default_take();
+        config.conversion.markers = MarkerSource::Labeled;
+        config.cleaning.rigid_body_cutoff_hz = 0.0;
+        let imported = convert_with_robot(&take, "lab", &config, Some(&robot)).unwrap();
+        let fit = imported.report.robot.clone().expect("a robot fit");
+        assert!(fit.estimated && fit.rms_m < 1e-9, "{fit:?}");
+        let half = std::f64::consts::FRAC_1_SQRT_2;
+        let expected = [-half, 0.0, 0.0, half];
+        let sign = fit.rotation_xyzw[3].signum();
+        for i in 0..4 {
+            assert!(
+                (sign * fit.rotation_xyzw[i] - expected[i]).abs() < 1e-9,
+                "{fit:?}"
+            );
+        }
+        for (i, t) in [-0.4, 0.0, 0.15].into_iter().enumerate() {
+            assert!((fit.translation_m[i] - t).abs() < 1e-9, "{fit:?}");
+        }
+        let tool = &imported.trajectory.tool;
+        for k in [0, 30, 59] {
+            assert!(dist(tool.position[k], helix(k)) < 1e-9);
+        }
+        assert!(imported.report.to_string().contains("estimated transform"));
+    }
+
+    #[test]
     fn angular_velocity_of_a_steady_turn() {
         // 0.5 rad/s about world Y, sampled at 100 Hz.
         let t: Vec<f64> = (0..50).map(|k| k as f64 * 0.01).collect();

@@ -165,12 +165,14 @@ pub fn read_take(path: &Path) -> Result<MotiveTake, MotiveError> {
         path: path.to_path_buf(),
         source,
     };
-    let too_large = |what: &str| MotiveError::TooLarge {
+    let too_large = |what: &str| {
+        MotiveError::TooLarge {
         path: path.to_path_buf(),
         message: format!(
             "{what} more than the {:.0} GiB an import reads; expected a shorter export (fewer frames or markers)",
             gib(MAX_TAKE_TEXT_BYTES)
         ),
+    }
     };
     let size = std::fs::metadata(path).map_err(io_err)?.len();
     if size > MAX_TAKE_TEXT_BYTES {

@@ -11,7 +11,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::clean::rigid_fit;
@@ -142,6 +142,20 @@ impl RigidTransform {
     /// where the rotation about that line is undetermined.
     pub fn fit(robot: &[Vector3<f64>], mocap: &[Vector3<f64>]) -> Option<RigidTransform> {
         if robot.len() != mocap.len() {
+            return None;
+        }
+        // The spread (RMS) of the path along its second principal direction must reach 1 mm, or
+        // the rotation about the path's line is noise.
+        let n = robot.len().max(1) as f64;
+        let centre = robot.iter().sum::<Vector3<f64>>() / n;
+        let covariance: Matrix3<f64> = robot
+            .iter()
+            .map(|p| (p - centre) * (p - centre).transpose())
+            .sum::<Matrix3<f64>>()
+            / n;
+        let mut variances: Vec<f64> = covariance.symmetric_eigenvalues().iter().copied().collect();
+        variances.sort_by(|a, b| b.total_cmp(a));
+        if variances.len() < 2 || variances[1] < 1e-6 {
             return None;
         }
         let robot: Vec<[f64; 3]> = robot.iter().map(|&p| p.into()).collect();
@@ -283,7 +297,6 @@ pub fn tool_track(robot: &RobotTrajectory, times: &[f64], transform: &RigidTrans
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Matrix3;
 
     /// packages-v1's transform: `p_mocap = R (p_robot - o)`, R turns robot z (up) into mocap y.
     fn packages_v1() -> RigidTransform {
