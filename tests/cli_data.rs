@@ -349,7 +349,7 @@ const CASES: &[Case] = &[
         name: "fixed-length array of the wrong length",
         files: &[("c.toml", "[package]\nsize_m = [0.254]\n")],
         args: &[TAKE, "--config", "{dir}/c.toml"],
-        expect: &["c.toml: line 2", "expected an array with a size of 2"],
+        expect: &["c.toml: line 2", "invalid length 1, expected an array of length 2"],
     },
     Case {
         name: "sheet offset not positive",

@@ -4,7 +4,9 @@
 //!
 //! Assumptions (all configurable in `configs/import.toml`): the tool is the first rigid body and the
 //! object the second; the suction-cup centre sits at a fixed offset in the tool's frame; the
-//! package markers are the unlabelled markers; package and object masses come from the config.
+//! package markers are the unlabelled markers; package and object masses come from the config, and
+//! every take must be listed there (or a `[default_take]` given). With a robot trajectory file
+//! (see [`crate::robot`]) the tool track is the robot's command instead of the tool rigid body.
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -1036,6 +1038,7 @@ mod tests {
         assert_eq!(config.cleaning, defaults.cleaning);
         assert_eq!(config.conversion, defaults.conversion);
         assert_eq!(config.package, defaults.package);
+        assert_eq!(config.robot, defaults.robot);
         assert_eq!(config.takes.len(), 27);
         assert_eq!(
             config
