@@ -886,6 +886,18 @@ mod tests {
     }
 
     #[test]
+    fn every_shipped_trajectory_keeps_its_manifests_promises() {
+        let dataset = Dataset::open(&shipped()).unwrap();
+        for id in dataset.ids(None) {
+            let entry = dataset.entries.iter().find(|e| e.id == id).unwrap();
+            assert!(entry.marker_rows.is_some(), "{id}: no marker_rows");
+            if let Err(err) = dataset.load(&id) {
+                panic!("{id}: {err}");
+            }
+        }
+    }
+
+    #[test]
     fn loads_a_trajectory_consistently_with_its_manifest() {
         let dataset = Dataset::open(&shipped()).unwrap();
         let traj = dataset.load("HHLHL").unwrap();

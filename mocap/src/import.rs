@@ -1289,11 +1289,8 @@ mod tests {
         let half = std::f64::consts::FRAC_1_SQRT_2;
         let expected = [-half, 0.0, 0.0, half];
         let sign = fit.rotation_xyzw[3].signum();
-        for i in 0..4 {
-            assert!(
-                (sign * fit.rotation_xyzw[i] - expected[i]).abs() < 1e-9,
-                "{fit:?}"
-            );
+        for (got, want) in fit.rotation_xyzw.iter().zip(expected) {
+            assert!((sign * got - want).abs() < 1e-9, "{fit:?}");
         }
         for (i, t) in [-0.4, 0.0, 0.15].into_iter().enumerate() {
             assert!((fit.translation_m[i] - t).abs() < 1e-9, "{fit:?}");
