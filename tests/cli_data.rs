@@ -423,6 +423,15 @@ const CASES: &[Case] = &[
         expect: &["out: exists and is not a folder"],
     },
     Case {
+        name: "a file where the trajectory folder goes",
+        files: &[
+            ("c.toml", "[default_take]\nsplit = \"train\"\nobject_total_mass_kg = 0.2\n"),
+            ("out/a30_m0.5_high_excerpt", "a file"),
+        ],
+        args: &[TAKE, "--config", "{dir}/c.toml"],
+        expect: &["out/a30_m0.5_high_excerpt: exists and is not a folder"],
+    },
+    Case {
         name: "existing manifest malformed",
         files: &[
             ("c.toml", "[default_take]\nsplit = \"train\"\nobject_total_mass_kg = 0.2\n"),

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use rlpkg_mocap::clean::{percent, MarkerRetention};
 use rlpkg_mocap::dataset::{clean_leftovers, write_manifest};
 use rlpkg_mocap::import::{import_take_with_robot, take_id, ImportConfig, ImportedTake};
-use rlpkg_mocap::Dataset;
+use rlpkg_mocap::{DataError, Dataset, ManifestEntry};
 
 use crate::error::input_error;
 
@@ -127,21 +127,15 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         total.observed_kept + total.velocity_filled + total.interpolated,
         total.output_percent()
     );
+    let created = !args.out.exists();
     std::fs::create_dir_all(&args.out)
         .map_err(|err| input_error(format!("{}: {err}", args.out.display())))?;
-    // Each trajectory folder appears whole (written beside it, then renamed), and its manifest
-    // entry only after it: an interrupted import leaves the takes finished so far, complete and
-    // listed, and leftovers that the next run removes.
-    for take in imported.iter().filter(|t| t.include) {
-        take.trajectory
-            .save_folder(&args.out)
-            .map_err(input_error)?;
-        entries.retain(|e| e.id != take.entry.id);
-        entries.push(take.entry.clone());
-        write_manifest(&args.out, &entries).map_err(input_error)?;
-    }
-    if !args.out.join("manifest.toml").exists() {
-        write_manifest(&args.out, &entries).map_err(input_error)?;
+    if let Err(err) = write_takes(&args.out, &imported, &mut entries) {
+        if created {
+            // Best effort: a folder this run created and left empty goes again.
+            let _ = std::fs::remove_dir(&args.out);
+        }
+        return Err(input_error(err));
     }
     let written = imported.iter().filter(|t| t.include).count();
     println!(
@@ -149,6 +143,26 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         args.out.join("manifest.toml").display(),
         entries.len()
     );
+    Ok(())
+}
+
+/// Writes the included takes into `out`. Each trajectory folder appears whole (written beside it,
+/// then renamed), and its manifest entry only after it: an interrupted import leaves the takes
+/// finished so far, complete and listed, and leftovers that the next run removes.
+fn write_takes(
+    out: &std::path::Path,
+    imported: &[ImportedTake],
+    entries: &mut Vec<ManifestEntry>,
+) -> Result<(), DataError> {
+    for take in imported.iter().filter(|t| t.include) {
+        take.trajectory.save_folder(out)?;
+        entries.retain(|e| e.id != take.entry.id);
+        entries.push(take.entry.clone());
+        write_manifest(out, entries)?;
+    }
+    if !out.join("manifest.toml").exists() {
+        write_manifest(out, entries)?;
+    }
     Ok(())
 }
 
