@@ -297,12 +297,18 @@ impl ImportConfig {
             }
         };
         let exclude = own.exclude.or(default.exclude).unwrap_or(false);
+        // For a listed take, say that [default_take] did not help either.
+        let fallback = if key == "default_take" {
+            ""
+        } else {
+            " (and [default_take] gives none)"
+        };
         let split = match own.split.or(default.split) {
             Some(split) => split,
             None if exclude => Split::Train,
             None => {
                 return Err(format!(
-                    "{key}.split is missing (and [default_take] gives none); expected \"train\" or \"test\""
+                    "{key}.split is missing{fallback}; expected \"train\" or \"test\""
                 ))
             }
         };
@@ -311,7 +317,7 @@ impl ImportConfig {
             .or(default.object_total_mass_kg)
             .ok_or_else(|| {
                 format!(
-                    "{key}.object_total_mass_kg is missing (and [default_take] gives none); expected the object's mass with its added weight in kg"
+                    "{key}.object_total_mass_kg is missing{fallback}; expected the object's mass with its added weight in kg"
                 )
             })?;
         Ok(TakeSettings {
