@@ -187,6 +187,11 @@ pub struct CleaningConfig {
     pub reid_distance_growth_m_per_s: f64,
     /// Re-identification: how long (s) a lost track stays a candidate.
     pub reid_max_lost_s: f64,
+    /// Re-identification: largest distance (m) of a new id from the lost track's sheet, the plane
+    /// through the track's predicted position fitted to the markers around it. Half the distance
+    /// between the package's two film sheets keeps a marker of one sheet from being joined to a
+    /// lost marker of the other.
+    pub reid_max_sheet_offset_m: f64,
     /// Number of nearby tracks whose motion carries a hidden marker along (re-identification and
     /// long-gap interpolation).
     pub neighbours: usize,
@@ -214,6 +219,7 @@ impl Default for CleaningConfig {
             reid_max_distance_m: 0.02,
             reid_distance_growth_m_per_s: 0.02,
             reid_max_lost_s: 1.5,
+            reid_max_sheet_offset_m: 0.006,
             neighbours: 4,
             neighbourhood_m: 0.12,
             min_track_s: 0.2,
@@ -230,6 +236,7 @@ impl CleaningConfig {
     pub fn validate(&self) -> Result<(), String> {
         let positive = [
             ("reid_max_distance_m", self.reid_max_distance_m),
+            ("reid_max_sheet_offset_m", self.reid_max_sheet_offset_m),
             ("neighbourhood_m", self.neighbourhood_m),
             ("max_cluster_distance_m", self.max_cluster_distance_m),
         ];
@@ -526,6 +533,18 @@ pub fn reidentify(
                         .unwrap_or(anchor)
                 })
                 .collect();
+            // The sheet each lost marker is on: the plane of the markers around its predicted
+            // position now, else around its last position when it was last seen.
+            let normals: Vec<Option<Vector3<f64>>> = lost
+                .iter()
+                .zip(&predicted)
+                .map(|(&j, &p)| {
+                    let anchor = tracks[j][last_seen[j]].expect("track seen at its last frame");
+                    sheet_normal(&tracks, k, p, config.neighbourhood_m).or_else(|| {
+                        sheet_normal(&tracks, last_seen[j], anchor, config.neighbourhood_m)
+                    })
+                })
+                .collect();
             let accepted: Vec<f64> = lost
                 .iter()
                 .map(|&j| {
@@ -536,12 +555,19 @@ pub fn reidentify(
             let mut cost = Vec::with_capacity(newcomers.len() * lost.len());
             for &i in &newcomers {
                 let first = fragments[i][k].expect("fragment starts at k");
-                cost.extend(
-                    predicted
-                        .iter()
-                        .zip(&accepted)
-                        .map(|(&p, limit)| distance(first, p) / limit),
-                );
+                cost.extend(predicted.iter().zip(&accepted).zip(&normals).map(
+                    |((&p, limit), normal)| {
+                        let offset = Vector3::from(first) - Vector3::from(p);
+                        // Without a plane, only a newcomer closer than the sheet offset in every
+                        // direction is surely on the same sheet.
+                        let off_sheet = normal.map_or(offset.norm(), |n| offset.dot(&n).abs());
+                        if off_sheet > config.reid_max_sheet_offset_m {
+                            f64::INFINITY
+                        } else {
+                            distance(first, p) / limit
+                        }
+                    },
+                ));
             }
             for (r, c) in assign(&cost, newcomers.len(), lost.len(), 1.0) {
                 target[r] = Some((lost[c], cost[r * lost.len() + c] * accepted[c]));
@@ -573,6 +599,49 @@ pub fn reidentify(
         }
     }
     (tracks, joined)
+}
+
+/// Markers used to fit the local sheet plane: the nearest ones, so the plane stays local on a
+/// package that sags.
+const SHEET_PLANE_MARKERS: usize = 8;
+
+/// Unit normal of the plane through the (up to [`SHEET_PLANE_MARKERS`]) markers seen at `frame`
+/// nearest to `centre`, within `radius_m` (their direction of least spread); `None` for fewer than
+/// three or for points that do not span a plane (spread along the second direction below 1.2
+/// times that along the normal, or below 1 mm).
+fn sheet_normal(
+    tracks: &[Series],
+    frame: usize,
+    centre: [f64; 3],
+    radius_m: f64,
+) -> Option<Vector3<f64>> {
+    let mut near: Vec<(f64, Vector3<f64>)> = tracks
+        .iter()
+        .filter_map(|t| t[frame])
+        .map(|p| (distance(p, centre), Vector3::from(p)))
+        .filter(|&(d, _)| d <= radius_m)
+        .collect();
+    near.sort_by(|a, b| a.0.total_cmp(&b.0));
+    near.truncate(SHEET_PLANE_MARKERS);
+    let near: Vec<Vector3<f64>> = near.into_iter().map(|(_, p)| p).collect();
+    if near.len() < 3 {
+        return None;
+    }
+    let mean = near.iter().sum::<Vector3<f64>>() / near.len() as f64;
+    let covariance: Matrix3<f64> = near
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<Matrix3<f64>>()
+        / near.len() as f64;
+    let eigen = covariance.symmetric_eigen();
+    let mut order = [0, 1, 2];
+    order.sort_by(|&a, &b| eigen.eigenvalues[a].total_cmp(&eigen.eigenvalues[b]));
+    let (least, middle) = (eigen.eigenvalues[order[0]], eigen.eigenvalues[order[1]]);
+    // Variances: a spread ratio of 1.2 is a ratio of 1.44. A lifted package sags, so the markers
+    // around a point are far from flat (measured on packages-v1: 15-30 mm RMS off the best plane
+    // over 12 cm); the least-spread direction is still the local normal.
+    (middle >= 1.44 * least.max(0.0) && middle >= 1e-6)
+        .then(|| eigen.eigenvectors.column(order[0]).normalize())
 }
 
 /// Other markers' tracks, used to carry a hidden marker along with the package around it.
@@ -639,7 +708,7 @@ impl Neighbourhood<'_> {
 
 /// Least-squares rotation and centroids mapping points `from` onto `to` (Kabsch); `None` for
 /// fewer than three points or points (nearly) in a line, where the rotation is undetermined.
-fn rigid_fit(
+pub(crate) fn rigid_fit(
     from: &[[f64; 3]],
     to: &[[f64; 3]],
 ) -> Option<(Matrix3<f64>, Vector3<f64>, Vector3<f64>)> {
@@ -1187,6 +1256,66 @@ mod tests {
         assert_eq!(r.observed_kept, 200 * 2 + 80 * 2 + 105 * 2);
         assert_eq!(r.interpolated, 30);
         assert_eq!(cleaned.frame(100).len(), 4);
+    }
+
+    #[test]
+    fn reidentification_never_joins_markers_across_sheets() {
+        // Two sheets 12 mm apart (y = 0.012 and y = 0), 3 x 2 markers each, moving along x at
+        // 0.5 m/s (250 Hz). Top marker U is lost at frame 80 and reappears under a new id at frame
+        // 147; the bottom sheet first shows at frame 95, marker L right under U. L is 12 mm from
+        // U's predicted position, within the 20 mm gate, so only the sheet test keeps them apart.
+        let n = 250;
+        let speed = 0.002;
+        let grid = [
+            (-0.06, -0.035),
+            (0.0, -0.035),
+            (0.06, -0.035),
+            (-0.06, 0.035),
+            (0.06, 0.035),
+        ];
+        let mut fragments: Vec<Series> = Vec::new();
+        for &(x, z) in &grid {
+            fragments.push(moving(n, [x, 0.012, z], speed, |_| true));
+        }
+        let u_before = moving(n, [0.0, 0.012, 0.035], speed, |k| k < 80);
+        let u_after = moving(n, [0.0, 0.012, 0.035], speed, |k| k >= 147);
+        let l = moving(n, [0.0, 0.0, 0.035], speed, |k| k >= 95);
+        fragments.push(u_before.clone());
+        for &(x, z) in &grid {
+            fragments.push(moving(n, [x, 0.0, z], speed, |k| k >= 95));
+        }
+        fragments.push(l.clone());
+        fragments.push(u_after.clone());
+        let config = CleaningConfig::default();
+        let (tracks, joined) = reidentify(&fragments, &config, 250.0);
+        // Every track stays on one sheet.
+        for track in &tracks {
+            let heights: Vec<f64> = track.iter().flatten().map(|p| p[1]).collect();
+            assert!(
+                heights.iter().all(|y| (y - heights[0]).abs() < 1e-9),
+                "a track mixes sheets: heights {:?}",
+                heights
+            );
+        }
+        assert_eq!(joined.len(), 1, "only U's two ids are one marker");
+        let u = tracks
+            .iter()
+            .find(|t| t[0] == u_before[0])
+            .expect("U's track");
+        assert_eq!(u[150], u_after[150]);
+        assert!(u[100].is_none());
+        assert!(tracks.iter().any(|t| t[100] == l[100] && t[0].is_none()));
+        // The same data without the sheet test (a gate wider than the sheets' gap) joins L to U.
+        let no_sheets = CleaningConfig {
+            reid_max_sheet_offset_m: 1.0,
+            ..config
+        };
+        let (tracks, _) = reidentify(&fragments, &no_sheets, 250.0);
+        let u = tracks.iter().find(|t| t[0] == u_before[0]).unwrap();
+        assert_eq!(
+            u[100], l[100],
+            "without the sheet test L continues U's track"
+        );
     }
 
     #[test]

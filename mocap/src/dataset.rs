@@ -23,6 +23,9 @@ pub const MARKERS_HEADER: [&str; 5] = ["frame", "t", "x", "y", "z"];
 
 /// Largest difference (s) allowed between a marker row's time and its frame's tool time.
 const TIME_TOLERANCE_S: f64 = 1e-5;
+/// Largest difference (s) allowed between the manifest's `duration_s` (rounded when it was
+/// written, 4 decimals in the shipped data) and the last tool time.
+const DURATION_TOLERANCE_S: f64 = 1e-3;
 
 /// What went wrong while reading or writing a dataset; every variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -127,6 +130,78 @@ pub struct ManifestEntry {
     /// Most markers seen in a frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub markers_per_frame_max: Option<usize>,
+    /// Data rows of `markers.csv` (markers seen, summed over the frames), so that a file cut at a
+    /// line boundary is noticed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_rows: Option<usize>,
+}
+
+impl ManifestEntry {
+    /// Checks a loaded trajectory against what this entry promises (frame count, duration, marker
+    /// rows and markers per frame); the error names the file that disagrees, the manifest and both
+    /// values.
+    pub fn check(
+        &self,
+        dir: &Path,
+        trajectory: &Trajectory,
+        manifest: &Path,
+    ) -> Result<(), DataError> {
+        let disagree = |file: &str, what: String| {
+            invalid(
+                &dir.join(file),
+                format!(
+                    "{what} (manifest {} promises it for {:?}; truncated or edited file?)",
+                    manifest.display(),
+                    self.id
+                ),
+            )
+        };
+        let frames = trajectory.tool.t.len();
+        if frames != self.frames {
+            return Err(disagree(
+                "tool.csv",
+                format!("expected {} frames, found {frames}", self.frames),
+            ));
+        }
+        let duration = trajectory.tool.t.last().copied().unwrap_or(0.0);
+        if (duration - self.duration_s).abs() > DURATION_TOLERANCE_S {
+            return Err(disagree(
+                "tool.csv",
+                format!(
+                    "expected the last frame at t = {} s, found t = {duration} s",
+                    self.duration_s
+                ),
+            ));
+        }
+        let markers = &trajectory.markers;
+        if let Some(rows) = self.marker_rows {
+            let found = markers.points.len();
+            if found != rows {
+                return Err(disagree(
+                    "markers.csv",
+                    format!("expected {rows} data rows, found {found}"),
+                ));
+            }
+        }
+        let counts = (0..markers.len()).map(|k| (k, markers.frame(k).len()));
+        if let Some(min) = self.markers_per_frame_min {
+            if let Some((k, n)) = counts.clone().find(|&(_, n)| n < min) {
+                return Err(disagree(
+                    "markers.csv",
+                    format!("expected at least {min} markers in every frame, frame {k} has {n}"),
+                ));
+            }
+        }
+        if let Some(max) = self.markers_per_frame_max {
+            if let Some((k, n)) = counts.clone().find(|&(_, n)| n > max) {
+                return Err(disagree(
+                    "markers.csv",
+                    format!("expected at most {max} markers in every frame, frame {k} has {n}"),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -148,18 +223,7 @@ impl Dataset {
     /// Reads `dir/manifest.toml` and checks that every listed trajectory folder exists.
     pub fn open(dir: &Path) -> Result<Dataset, DataError> {
         let path = dir.join("manifest.toml");
-        let text = fs::read_to_string(&path).map_err(io_error(&path))?;
-        let manifest: Manifest = toml::from_str(&text).map_err(|err| {
-            let line = err
-                .span()
-                .map(|span| line_of(&text, span.start))
-                .unwrap_or(1);
-            DataError::Malformed {
-                path: path.clone(),
-                line,
-                message: err.message().to_string(),
-            }
-        })?;
+        let manifest = read_manifest(&path)?;
         let mut seen = std::collections::HashSet::new();
         for entry in &manifest.trajectory {
             if !seen.insert(entry.id.as_str()) {
@@ -194,19 +258,40 @@ impl Dataset {
             .collect()
     }
 
-    /// Loads trajectory `id`, which must be listed in the manifest.
+    /// Loads trajectory `id`, which must be listed in the manifest, and checks it against its
+    /// manifest entry.
     pub fn load(&self, id: &str) -> Result<Trajectory, DataError> {
-        if !self.entries.iter().any(|entry| entry.id == id) {
+        let manifest = self.root.join("manifest.toml");
+        let Some(entry) = self.entries.iter().find(|entry| entry.id == id) else {
             return Err(invalid(
-                &self.root.join("manifest.toml"),
+                &manifest,
                 format!(
                     "no trajectory {id:?}; known ids: {}",
                     self.ids(None).join(", ")
                 ),
             ));
-        }
-        load_trajectory(&self.root.join(id))
+        };
+        let dir = self.root.join(id);
+        let trajectory = read_trajectory(&dir)?;
+        entry.check(&dir, &trajectory, &manifest)?;
+        Ok(trajectory)
     }
+}
+
+/// Parses a `manifest.toml`, naming the line of the first error.
+fn read_manifest(path: &Path) -> Result<Manifest, DataError> {
+    let text = fs::read_to_string(path).map_err(io_error(path))?;
+    toml::from_str(&text).map_err(|err| {
+        let line = err
+            .span()
+            .map(|span| line_of(&text, span.start))
+            .unwrap_or(1);
+        DataError::Malformed {
+            path: path.to_path_buf(),
+            line,
+            message: err.message().to_string(),
+        }
+    })
 }
 
 /// Writes `dir/manifest.toml` atomically.
@@ -335,7 +420,7 @@ pub struct Trajectory {
 }
 
 /// Reads the rows of a CSV file with exactly `header`, giving each row's 1-based line and values.
-fn read_rows(path: &Path, header: &[&str]) -> Result<Vec<(usize, Vec<f64>)>, DataError> {
+pub(crate) fn read_rows(path: &Path, header: &[&str]) -> Result<Vec<(usize, Vec<f64>)>, DataError> {
     let mut reader = csv::ReaderBuilder::new()
         .flexible(true)
         .from_path(path)
@@ -408,7 +493,7 @@ fn csv_error(path: &Path, err: csv::Error) -> DataError {
 }
 
 /// Checks that there is a row and that times strictly increase, naming the first bad line.
-fn check_increasing(path: &Path, rows: &[(usize, Vec<f64>)]) -> Result<(), DataError> {
+pub(crate) fn check_increasing(path: &Path, rows: &[(usize, Vec<f64>)]) -> Result<(), DataError> {
     for pair in rows.windows(2) {
         if pair[1].1[0] <= pair[0].1[0] {
             return Err(DataError::Malformed {
@@ -543,8 +628,26 @@ fn read_meta(path: &Path) -> Result<Meta, DataError> {
     Ok(meta)
 }
 
-/// Loads and validates one trajectory folder (`tool.csv`, `object.csv`, `markers.csv`, `meta.toml`).
+/// Loads and validates one trajectory folder (`tool.csv`, `object.csv`, `markers.csv`,
+/// `meta.toml`). When the folder sits in a dataset whose `manifest.toml` lists it, the trajectory is
+/// also checked against that entry (frame count, duration, marker rows), as [`Dataset::load`] does.
 pub fn load_trajectory(dir: &Path) -> Result<Trajectory, DataError> {
+    let trajectory = read_trajectory(dir)?;
+    let (Some(parent), Some(name)) = (dir.parent(), dir.file_name()) else {
+        return Ok(trajectory);
+    };
+    let manifest = parent.join("manifest.toml");
+    if manifest.is_file() {
+        let entries = read_manifest(&manifest)?.trajectory;
+        if let Some(entry) = entries.iter().find(|e| name == e.id.as_str()) {
+            entry.check(dir, &trajectory, &manifest)?;
+        }
+    }
+    Ok(trajectory)
+}
+
+/// Loads and validates one trajectory folder on its own (no manifest).
+fn read_trajectory(dir: &Path) -> Result<Trajectory, DataError> {
     if !dir.is_dir() {
         return Err(invalid(
             dir,
@@ -636,6 +739,120 @@ impl Trajectory {
     }
 }
 
+/// Prefix of the temporary folder a trajectory is written into before it is renamed into place.
+pub const TEMP_FOLDER_PREFIX: &str = ".rlpkg-tmp-";
+/// Prefix of a trajectory folder moved aside while its replacement is renamed into place.
+pub const REPLACED_FOLDER_PREFIX: &str = ".rlpkg-old-";
+
+impl Trajectory {
+    /// Writes this trajectory as the folder `root/<id>` all at once: the files go into a temporary
+    /// folder beside it, which is renamed into place (an existing folder is moved aside first and
+    /// removed after). On error the temporary folder is removed and an existing folder is kept.
+    pub fn save_folder(&self, root: &Path) -> Result<PathBuf, DataError> {
+        let target = root.join(&self.id);
+        let temp = root.join(format!("{TEMP_FOLDER_PREFIX}{}", self.id));
+        let replaced = root.join(format!("{REPLACED_FOLDER_PREFIX}{}", self.id));
+        if let Ok(meta) = fs::symlink_metadata(&target) {
+            if !meta.is_dir() {
+                return Err(invalid(
+                    &target,
+                    "exists and is not a folder; expected a trajectory folder or nothing",
+                ));
+            }
+        }
+        remove_if_present(&temp)?;
+        let result = self
+            .save(&temp)
+            .and_then(|()| replace_folder(&temp, &target, &replaced));
+        if result.is_err() {
+            // Best effort: the error being returned matters more than this one.
+            let _ = fs::remove_dir_all(&temp);
+        }
+        result.map(|()| target)
+    }
+}
+
+fn remove_if_present(dir: &Path) -> Result<(), DataError> {
+    match fs::remove_dir_all(dir) {
+        Err(err) if err.kind() != std::io::ErrorKind::NotFound => Err(DataError::Io {
+            path: dir.to_path_buf(),
+            source: err,
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Renames the complete folder `temp` to `target`, moving an existing `target` aside to
+/// `replaced` first and removing it once the new one is in place.
+fn replace_folder(temp: &Path, target: &Path, replaced: &Path) -> Result<(), DataError> {
+    if target.exists() {
+        remove_if_present(replaced)?;
+        fs::rename(target, replaced).map_err(io_error(target))?;
+        if let Err(err) = fs::rename(temp, target) {
+            // Put the old folder back so the dataset stays as it was.
+            let _ = fs::rename(replaced, target);
+            return Err(io_error(target)(err));
+        }
+        remove_if_present(replaced)?;
+    } else {
+        fs::rename(temp, target).map_err(io_error(target))?;
+    }
+    // Make the rename durable; not every file system can sync a folder, and the data is complete
+    // either way.
+    if let Some(parent) = target.parent() {
+        let _ = fs::File::open(parent).and_then(|dir| dir.sync_all());
+    }
+    Ok(())
+}
+
+/// Removes what an interrupted import left in the dataset folder `root`: temporary trajectory
+/// folders, folders moved aside (put back if their replacement never arrived) and temporary files
+/// of an interrupted manifest write. Returns one line per folder or file it handled.
+pub fn clean_leftovers(root: &Path) -> Result<Vec<String>, DataError> {
+    let mut done = Vec::new();
+    let entries = match fs::read_dir(root) {
+        Ok(entries) => entries,
+        Err(err) if err.kind() == std::io::ErrorKind::NotFound => return Ok(done),
+        Err(err) => return Err(io_error(root)(err)),
+    };
+    let mut names: Vec<String> = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(io_error(root))?;
+        names.push(entry.file_name().to_string_lossy().into_owned());
+    }
+    names.sort();
+    for name in names {
+        let path = root.join(&name);
+        if name.starts_with(TEMP_FOLDER_PREFIX) {
+            remove_if_present(&path)?;
+            done.push(format!("removed the unfinished folder {}", path.display()));
+        } else if let Some(id) = name.strip_prefix(REPLACED_FOLDER_PREFIX) {
+            let target = root.join(id);
+            if target.exists() {
+                remove_if_present(&path)?;
+                done.push(format!("removed the replaced folder {}", path.display()));
+            } else {
+                fs::rename(&path, &target).map_err(io_error(&target))?;
+                done.push(format!(
+                    "restored {} (its replacement was never written)",
+                    target.display()
+                ));
+            }
+        } else if is_manifest_temp(&name) {
+            fs::remove_file(&path).map_err(io_error(&path))?;
+            done.push(format!("removed the unfinished file {}", path.display()));
+        }
+    }
+    Ok(done)
+}
+
+/// The temporary file name `atomic-write-file` uses for `manifest.toml`: `.manifest.toml.` and
+/// six random characters.
+fn is_manifest_temp(name: &str) -> bool {
+    name.strip_prefix(".manifest.toml.")
+        .is_some_and(|rest| rest.len() == 6 && rest.chars().all(|c| c.is_ascii_alphanumeric()))
+}
+
 /// Appends one CSV row with 6 decimals (micrometres, microseconds), as the shipped data.
 fn push_row(text: &mut String, values: &[f64]) {
     let cells: Vec<String> = values.iter().map(|v| format!("{v:.6}")).collect();
@@ -666,6 +883,18 @@ mod tests {
         test.sort();
         assert_eq!(test, ["HHHMM", "HHLMM", "HHMMM"]);
         assert_eq!(dataset.ids(Some(Split::Train)).len(), 15);
+    }
+
+    #[test]
+    fn every_shipped_trajectory_keeps_its_manifests_promises() {
+        let dataset = Dataset::open(&shipped()).unwrap();
+        for id in dataset.ids(None) {
+            let entry = dataset.entries.iter().find(|e| e.id == id).unwrap();
+            assert!(entry.marker_rows.is_some(), "{id}: no marker_rows");
+            if let Err(err) = dataset.load(&id) {
+                panic!("{id}: {err}");
+            }
+        }
     }
 
     #[test]
@@ -759,6 +988,150 @@ mod tests {
         fs::remove_file(out.join("markers.csv")).unwrap();
         let message = load_trajectory(&out).unwrap_err().to_string();
         assert!(message.contains("markers.csv"), "{message}");
+    }
+
+    /// A dataset holding a copy of HHLHL (with its shipped manifest entry) where `edit` changes the
+    /// files; returns the folder that holds the dataset.
+    fn edited_dataset(edit: impl Fn(&Path)) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("HHLHL");
+        fs::create_dir(&out).unwrap();
+        for name in ["tool.csv", "object.csv", "markers.csv", "meta.toml"] {
+            fs::copy(shipped().join("HHLHL").join(name), out.join(name)).unwrap();
+        }
+        let entry = Dataset::open(&shipped())
+            .unwrap()
+            .entries
+            .into_iter()
+            .find(|e| e.id == "HHLHL")
+            .unwrap();
+        write_manifest(dir.path(), &[entry]).unwrap();
+        edit(&out);
+        dir
+    }
+
+    /// Drops the last `lines` lines of a file (a cut at a line boundary).
+    fn drop_last_lines(path: &Path, lines: usize) {
+        let text = fs::read_to_string(path).unwrap();
+        let kept: Vec<&str> = text.lines().collect();
+        fs::write(path, kept[..kept.len() - lines].join("\n") + "\n").unwrap();
+    }
+
+    #[test]
+    fn markers_cut_at_a_line_boundary_break_the_manifests_promise() {
+        let rows = fs::read_to_string(shipped().join("HHLHL/markers.csv"))
+            .unwrap()
+            .lines()
+            .count()
+            - 1;
+        // One line: the last frame keeps most of its markers, so only the row count can tell.
+        let dir = edited_dataset(|t| drop_last_lines(&t.join("markers.csv"), 1));
+        let message = Dataset::open(dir.path())
+            .unwrap()
+            .load("HHLHL")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("HHLHL/markers.csv")
+                && message.contains(&format!("expected {rows} data rows, found {}", rows - 1))
+                && message.contains("manifest.toml"),
+            "{message}"
+        );
+        // The same check when the folder is loaded on its own (as `rlpkg simulate` does).
+        let direct = load_trajectory(&dir.path().join("HHLHL"))
+            .unwrap_err()
+            .to_string();
+        assert_eq!(direct, message);
+        // Without the row count, whole frames cut off fall below the promised minimum.
+        let dir = edited_dataset(|t| drop_last_lines(&t.join("markers.csv"), 200));
+        let mut entries = Dataset::open(dir.path()).unwrap().entries;
+        entries[0].marker_rows = None;
+        write_manifest(dir.path(), &entries).unwrap();
+        let message = load_trajectory(&dir.path().join("HHLHL"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("markers.csv: expected at least"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn tool_and_object_cut_alike_break_the_frame_count() {
+        // The three CSVs cut consistently: the last 10 frames are gone from all of them.
+        let dir = edited_dataset(|t| {
+            drop_last_lines(&t.join("tool.csv"), 10);
+            drop_last_lines(&t.join("object.csv"), 10);
+            let frames = fs::read_to_string(t.join("tool.csv"))
+                .unwrap()
+                .lines()
+                .count()
+                - 1;
+            let markers = fs::read_to_string(t.join("markers.csv")).unwrap();
+            let kept: Vec<&str> = markers
+                .lines()
+                .filter(|line| {
+                    line.split(',')
+                        .next()
+                        .unwrap()
+                        .parse::<usize>()
+                        .map_or(true, |k| k < frames)
+                })
+                .collect();
+            fs::write(t.join("markers.csv"), kept.join("\n") + "\n").unwrap();
+        });
+        let frames = Dataset::open(dir.path()).unwrap().entries[0].frames;
+        let message = Dataset::open(dir.path())
+            .unwrap()
+            .load("HHLHL")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("HHLHL/tool.csv")
+                && message.contains(&format!("expected {frames} frames, found {}", frames - 10)),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn a_folder_is_saved_whole_and_leftovers_are_cleaned() {
+        let traj = Dataset::open(&shipped()).unwrap().load("HHLHL").unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        // An interrupted earlier run: an unfinished folder, a folder moved aside whose replacement
+        // never arrived, and a temporary manifest file.
+        fs::create_dir(root.join(".rlpkg-tmp-HHLHL")).unwrap();
+        fs::write(root.join(".rlpkg-tmp-HHLHL/tool.csv"), "t\n").unwrap();
+        fs::create_dir(root.join(".rlpkg-old-X")).unwrap();
+        fs::write(root.join(".rlpkg-old-X/meta.toml"), "").unwrap();
+        fs::write(root.join(".manifest.toml.a1B2c3"), "").unwrap();
+        fs::write(root.join("notes.txt"), "kept").unwrap();
+        let done = clean_leftovers(root).unwrap();
+        assert_eq!(done.len(), 3, "{done:?}");
+        let mut left: Vec<String> = fs::read_dir(root)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["X", "notes.txt"]);
+        assert!(root.join("X/meta.toml").is_file());
+
+        let target = traj.save_folder(root).unwrap();
+        assert_eq!(load_trajectory(&target).unwrap(), traj);
+        // Saving again replaces the folder and leaves nothing beside it.
+        fs::write(target.join("stale.txt"), "").unwrap();
+        traj.save_folder(root).unwrap();
+        assert!(!target.join("stale.txt").exists());
+        assert!(!root.join(".rlpkg-old-HHLHL").exists() && !root.join(".rlpkg-tmp-HHLHL").exists());
+        // A file where the folder should go is refused and left alone.
+        fs::remove_dir_all(&target).unwrap();
+        fs::write(&target, "not a folder").unwrap();
+        let message = traj.save_folder(root).unwrap_err().to_string();
+        assert!(
+            message.contains("HHLHL: exists and is not a folder"),
+            "{message}"
+        );
+        assert!(!root.join(".rlpkg-tmp-HHLHL").exists());
     }
 
     #[test]

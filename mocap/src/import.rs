@@ -4,12 +4,15 @@
 //!
 //! Assumptions (all configurable in `configs/import.toml`): the tool is the first rigid body and the
 //! object the second; the suction-cup centre sits at a fixed offset in the tool's frame; the
-//! package markers are the unlabelled markers; package and object masses come from the config.
+//! package markers are the unlabelled markers; package and object masses come from the config, and
+//! every take must be listed there (or a `[default_take]` given). With a robot trajectory file
+//! (see [`crate::robot`]) the tool track is the robot's command instead of the tool rigid body.
 
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -17,9 +20,12 @@ use crate::clean::{
     self, percent, Butterworth, CleanError, CleaningConfig, MarkerRetention, Series,
 };
 use crate::dataset::{
-    ManifestEntry, MarkerFrames, Meta, ObjectTrack, Split, ToolTrack, Trajectory,
+    DataError, ManifestEntry, MarkerFrames, Meta, ObjectTrack, Split, ToolTrack, Trajectory,
 };
 use crate::motive::{self, MarkerKind, MotiveError, MotiveTake};
+use crate::robot::{
+    self, covered_frames, read_robot, RigidTransform, RobotConfig, RobotTrajectory,
+};
 
 /// An import failure; the message names the file and what was expected.
 #[derive(Debug, Error)]
@@ -35,6 +41,9 @@ pub enum ImportError {
         /// Key (and line) and what was expected.
         message: String,
     },
+    /// A robot trajectory file could not be read or is malformed.
+    #[error(transparent)]
+    Robot(#[from] DataError),
     /// The take parsed but cannot be converted (a rigid body missing, too few markers, ...).
     #[error("{}: {message}", path.display())]
     Take {
@@ -108,8 +117,6 @@ pub struct PackageConfig {
     pub object_diameter_m: f64,
     /// Object body mass without added weights, kg.
     pub object_body_mass_kg: f64,
-    /// Object mass including added weights, kg (default for takes without their own).
-    pub object_total_mass_kg: f64,
 }
 
 impl Default for PackageConfig {
@@ -119,22 +126,20 @@ impl Default for PackageConfig {
             mass_kg: 0.03,
             object_diameter_m: 0.16,
             object_body_mass_kg: 0.2268,
-            object_total_mass_kg: 0.2268,
         }
     }
 }
 
-/// `[takes."<id>"]`: per-take manifest fields.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// `[takes."<id>"]` and `[default_take]`: per-take manifest fields. A take's own entry wins over
+/// `[default_take]`; a field that neither gives is an error, never a silent default.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TakeConfig {
-    /// Train or test (default train).
-    #[serde(default = "default_split")]
-    pub split: Split,
-    /// Clean and report the take but do not write it (e.g. a failed grasp).
-    #[serde(default)]
-    pub exclude: bool,
-    /// Object mass including weights (kg); default `[package] object_total_mass_kg`.
+    /// Train or test (needed unless the take is excluded).
+    pub split: Option<Split>,
+    /// Clean and report the take but do not write it (e.g. a failed grasp); false if not given.
+    pub exclude: Option<bool>,
+    /// Object mass including weights (kg).
     pub object_total_mass_kg: Option<f64>,
     /// Mass class label.
     pub mass: Option<String>,
@@ -146,8 +151,23 @@ pub struct TakeConfig {
     pub orientation: Option<String>,
 }
 
-fn default_split() -> Split {
-    Split::Train
+/// The manifest fields of one take, resolved from its `[takes]` entry and `[default_take]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TakeSettings {
+    /// Train or test (train for an excluded take that gives none; it is not written).
+    pub split: Split,
+    /// Not written to the dataset.
+    pub exclude: bool,
+    /// Object mass including weights (kg).
+    pub object_total_mass_kg: f64,
+    /// Mass class label.
+    pub mass: Option<String>,
+    /// Added mass in lb.
+    pub mass_lb: Option<f64>,
+    /// Speed class label.
+    pub velocity: Option<String>,
+    /// Placement orientation label.
+    pub orientation: Option<String>,
 }
 
 /// The whole `configs/import.toml`.
@@ -162,6 +182,11 @@ pub struct ImportConfig {
     pub package: PackageConfig,
     /// Per-take manifest fields, by take id (the file name without `.csv` / `.csv.gz`).
     pub takes: BTreeMap<String, TakeConfig>,
+    /// Robot-to-mocap transform for takes imported with their robot trajectory file.
+    pub robot: RobotConfig,
+    /// Fields for takes not listed in `takes` (and for fields a listed take leaves out); without
+    /// it, an unlisted take is an error.
+    pub default_take: Option<TakeConfig>,
 }
 
 impl ImportConfig {
@@ -186,6 +211,7 @@ impl ImportConfig {
     /// Checks every value against its range; the message names the key and the range.
     pub fn validate(&self) -> Result<(), String> {
         self.cleaning.validate()?;
+        self.robot.validate()?;
         let c = &self.conversion;
         let checks = [
             (
@@ -212,11 +238,6 @@ impl ImportConfig {
                 self.package.object_body_mass_kg,
                 false,
             ),
-            (
-                "package.object_total_mass_kg",
-                self.package.object_total_mass_kg,
-                true,
-            ),
         ];
         for (key, value, strictly_positive) in checks {
             let ok = value.is_finite()
@@ -239,16 +260,78 @@ impl ImportConfig {
                 c.tool_to_cup_m
             ));
         }
-        for (id, take) in &self.takes {
+        let listed = self
+            .takes
+            .iter()
+            .map(|(id, t)| (format!("takes.\"{id}\""), t));
+        for (key, take) in
+            listed.chain(self.default_take.iter().map(|t| ("default_take".into(), t)))
+        {
             if let Some(m) = take.object_total_mass_kg {
                 if !(m.is_finite() && m > 0.0) {
                     return Err(format!(
-                        "takes.\"{id}\".object_total_mass_kg = {m}: expected a number > 0"
+                        "{key}.object_total_mass_kg = {m}: expected a number > 0"
                     ));
                 }
             }
         }
+        for id in self.takes.keys() {
+            self.take(id)?;
+        }
         Ok(())
+    }
+
+    /// The manifest fields of take `id`: its `[takes]` entry, completed by `[default_take]`. An
+    /// unlisted take without a `[default_take]`, or a needed field that neither gives, is an error
+    /// naming the key.
+    pub fn take(&self, id: &str) -> Result<TakeSettings, String> {
+        let empty = TakeConfig::default();
+        let default = self.default_take.as_ref().unwrap_or(&empty);
+        let (own, key) = match self.takes.get(id) {
+            Some(own) => (own, format!("takes.\"{id}\"")),
+            None if self.default_take.is_some() => (&empty, "default_take".to_string()),
+            None => {
+                return Err(format!(
+                    "take \"{id}\" is not listed in [takes] and there is no [default_take]; expected a [takes.\"{id}\"] entry with split and object_total_mass_kg, or a [default_take] for unlisted takes"
+                ))
+            }
+        };
+        let exclude = own.exclude.or(default.exclude).unwrap_or(false);
+        // For a listed take, say that [default_take] did not help either.
+        let fallback = if key == "default_take" {
+            ""
+        } else {
+            " (and [default_take] gives none)"
+        };
+        let split = match own.split.or(default.split) {
+            Some(split) => split,
+            None if exclude => Split::Train,
+            None => {
+                return Err(format!(
+                    "{key}.split is missing{fallback}; expected \"train\" or \"test\""
+                ))
+            }
+        };
+        let object_total_mass_kg = own
+            .object_total_mass_kg
+            .or(default.object_total_mass_kg)
+            .ok_or_else(|| {
+                format!(
+                    "{key}.object_total_mass_kg is missing{fallback}; expected the object's mass with its added weight in kg"
+                )
+            })?;
+        Ok(TakeSettings {
+            split,
+            exclude,
+            object_total_mass_kg,
+            mass: own.mass.clone().or_else(|| default.mass.clone()),
+            mass_lb: own.mass_lb.or(default.mass_lb),
+            velocity: own.velocity.clone().or_else(|| default.velocity.clone()),
+            orientation: own
+                .orientation
+                .clone()
+                .or_else(|| default.orientation.clone()),
+        })
     }
 }
 
@@ -279,8 +362,25 @@ pub struct RetentionReport {
     pub markers_per_frame: (usize, usize),
     /// Marker samples in runs too short for the low-pass (written unfiltered).
     pub unfiltered_samples: usize,
+    /// Where the tool track came from when a robot file was given.
+    pub robot: Option<RobotFit>,
     /// Written to the dataset (false for takes excluded in the config).
     pub written: bool,
+}
+
+/// The robot-to-mocap transform used for a take imported with its robot file.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobotFit {
+    /// The robot file.
+    pub path: PathBuf,
+    /// Estimated from the Motive tool body (true) or given in the config (false).
+    pub estimated: bool,
+    /// RMS distance (m) between the transformed command and the Motive tool body.
+    pub rms_m: f64,
+    /// Rotation from robot to mocap axes (x, y, z, w).
+    pub rotation_xyzw: [f64; 4],
+    /// Translation (m).
+    pub translation_m: [f64; 3],
 }
 
 impl fmt::Display for RetentionReport {
@@ -325,7 +425,20 @@ impl fmt::Display for RetentionReport {
             self.markers_per_frame.0,
             self.markers_per_frame.1,
             self.unfiltered_samples
-        )
+        )?;
+        if let Some(fit) = &self.robot {
+            let q = fit.rotation_xyzw;
+            let p = fit.translation_m;
+            write!(
+                f,
+                "\n  tool track from {} ({} transform: rotation_xyzw = [{:.6}, {:.6}, {:.6}, {:.6}], translation_m = [{:.4}, {:.4}, {:.4}]); RMS distance to the Motive tool body {:.2} mm",
+                fit.path.display(),
+                if fit.estimated { "estimated" } else { "given" },
+                q[0], q[1], q[2], q[3], p[0], p[1], p[2],
+                1e3 * fit.rms_m
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -354,8 +467,19 @@ pub fn take_id(path: &Path) -> String {
 
 /// Reads, cleans and converts one Motive take.
 pub fn import_take(path: &Path, config: &ImportConfig) -> Result<ImportedTake, ImportError> {
+    import_take_with_robot(path, None, config)
+}
+
+/// Reads, cleans and converts one Motive take; with `robot`, the tool track comes from that robot
+/// trajectory file (see [`crate::robot`]) instead of the Motive tool rigid body.
+pub fn import_take_with_robot(
+    path: &Path,
+    robot: Option<&Path>,
+    config: &ImportConfig,
+) -> Result<ImportedTake, ImportError> {
+    let robot = robot.map(read_robot).transpose()?;
     let take = motive::read_take(path)?;
-    convert(&take, &take_id(path), config)
+    convert_with_robot(&take, &take_id(path), config, robot.as_ref())
 }
 
 /// A rigid body after gap bridging and filtering.
@@ -370,6 +494,18 @@ pub fn convert(
     id: &str,
     config: &ImportConfig,
 ) -> Result<ImportedTake, ImportError> {
+    convert_with_robot(take, id, config, None)
+}
+
+/// Cleans and converts a parsed take into trajectory `id`; with `robot`, the tool track is the
+/// robot's command carried into the mocap frame by the `[robot]` transform (given, or estimated
+/// from the Motive tool rigid body), on the frames the robot file covers.
+pub fn convert_with_robot(
+    take: &MotiveTake,
+    id: &str,
+    config: &ImportConfig,
+    robot: Option<&RobotTrajectory>,
+) -> Result<ImportedTake, ImportError> {
     let take_err = |message: String| ImportError::Take {
         path: take.path.clone(),
         message,
@@ -379,6 +515,7 @@ pub fn convert(
     let cleaning = &config.cleaning;
     let rate = take.header.export_frame_rate_hz;
     let n = take.len();
+    let settings = config.take(id).map_err(take_err)?;
 
     let tool_index = find_body(take, &conversion.tool_body, 0, "tool").map_err(take_err)?;
     let object_index = find_body(take, &conversion.object_body, 1, "object").map_err(take_err)?;
@@ -437,6 +574,28 @@ pub fn convert(
         .ok_or_else(|| {
             take_err("the tool and object rigid bodies are never both tracked".into())
         })?;
+
+    if let Some(robot) = robot {
+        let robot_err = |what: &str| {
+            take_err(format!(
+                "robot file {} (times {} to {} s) {what}; expected the robot times on the take's clock (its frames {} to {} s)",
+                robot.path.display(),
+                robot.t[0],
+                robot.t[robot.t.len() - 1],
+                take.time[0],
+                take.time[n - 1]
+            ))
+        };
+        let (first, last) = covered_frames(robot, &take.time)
+            .ok_or_else(|| robot_err("covers none of the take's frames"))?;
+        if first >= end || last <= start {
+            return Err(robot_err(
+                "covers none of the frames where both rigid bodies are tracked",
+            ));
+        }
+        start = start.max(first);
+        end = end.min(last);
+    }
 
     // Motive also exports the labelled markers of a rigid body as `Marker` columns named
     // `<body>:<marker>`; they belong to the tool or object, not to the package.
@@ -498,17 +657,60 @@ pub fn convert(
     let tool_rotation: Vec<[f64; 4]> = (start..end).map(|k| tool.rotation[k].unwrap()).collect();
     let object_position: Vec<[f64; 3]> =
         (start..end).map(|k| object.position[k].unwrap()).collect();
-    let tool_velocity = gradient(&tool_position, &t);
-    let angular_velocity = angular_velocity(&tool_rotation, &t);
     let object_velocity = gradient(&object_position, &t);
-    let tool_track = ToolTrack {
-        acceleration: gradient(&tool_velocity, &t),
-        angular_acceleration: gradient(&angular_velocity, &t),
-        t: t.clone(),
-        position: tool_position,
-        orientation: tool_rotation,
-        velocity: tool_velocity,
-        angular_velocity,
+    let (tool_track, robot_fit) = match robot {
+        None => {
+            let tool_velocity = gradient(&tool_position, &t);
+            let angular_velocity = angular_velocity(&tool_rotation, &t);
+            let track = ToolTrack {
+                acceleration: gradient(&tool_velocity, &t),
+                angular_acceleration: gradient(&angular_velocity, &t),
+                t: t.clone(),
+                position: tool_position,
+                orientation: tool_rotation,
+                velocity: tool_velocity,
+                angular_velocity,
+            };
+            (track, None)
+        }
+        Some(robot) => {
+            let times = &t_all[start..end];
+            let commanded = robot::positions_at(robot, times);
+            let body: Vec<Vector3<f64>> = tool_position.iter().map(|&p| p.into()).collect();
+            let (transform, estimated) = match config.robot.given() {
+                Some(given) => (given, false),
+                None => {
+                    let fitted = RigidTransform::fit(&commanded, &body).ok_or_else(|| {
+                        take_err(format!(
+                            "robot file {}: the tool path over the imported frames is (nearly) a straight line, so the robot-to-mocap rotation cannot be estimated; expected [robot] rotation_xyzw and translation_m in the config",
+                            robot.path.display()
+                        ))
+                    })?;
+                    (fitted, true)
+                }
+            };
+            let rms_m = transform.rms_error(&commanded, &body);
+            if rms_m > config.robot.max_fit_rms_m {
+                return Err(take_err(format!(
+                    "robot file {}: the {} transform puts the commanded tool point {:.1} mm (RMS) from the Motive tool rigid body, more than robot.max_fit_rms_m = {} m; expected the robot file of this take, with the tool point at the body's pivot",
+                    robot.path.display(),
+                    if estimated { "best-fitting" } else { "given" },
+                    1e3 * rms_m,
+                    config.robot.max_fit_rms_m
+                )));
+            }
+            let fit = RobotFit {
+                path: robot.path.clone(),
+                estimated,
+                rms_m,
+                rotation_xyzw: {
+                    let q = transform.rotation;
+                    [q.i, q.j, q.k, q.w]
+                },
+                translation_m: transform.translation.into(),
+            };
+            (robot::tool_track(robot, times, &transform), Some(fit))
+        }
     };
     let object_track = ObjectTrack {
         acceleration: gradient(&object_velocity, &t),
@@ -528,10 +730,7 @@ pub fn convert(
     let counts: Vec<usize> = frames.iter().map(Vec::len).collect();
     let markers_per_frame = (*counts.iter().min().unwrap(), *counts.iter().max().unwrap());
 
-    let take_config = config.takes.get(id);
-    let object_total_mass_kg = take_config
-        .and_then(|c| c.object_total_mass_kg)
-        .unwrap_or(config.package.object_total_mass_kg);
+    let object_total_mass_kg = settings.object_total_mass_kg;
     let cup = rotate(tool_track.orientation[0], conversion.tool_to_cup_m);
     let meta = Meta {
         id: id.to_string(),
@@ -546,18 +745,19 @@ pub fn convert(
     };
     let entry = ManifestEntry {
         id: id.to_string(),
-        split: take_config.map_or(Split::Train, |c| c.split),
-        mass: take_config.and_then(|c| c.mass.clone()),
-        mass_lb: take_config.and_then(|c| c.mass_lb),
-        velocity: take_config.and_then(|c| c.velocity.clone()),
-        orientation: take_config.and_then(|c| c.orientation.clone()),
+        split: settings.split,
+        mass: settings.mass,
+        mass_lb: settings.mass_lb,
+        velocity: settings.velocity,
+        orientation: settings.orientation,
         frames: t.len(),
         duration_s: *t.last().unwrap(),
         object_total_mass_kg,
         markers_per_frame_min: Some(markers_per_frame.0),
         markers_per_frame_max: Some(markers_per_frame.1),
+        marker_rows: Some(counts.iter().sum()),
     };
-    let include = !take_config.is_some_and(|c| c.exclude);
+    let include = !settings.exclude;
     let report = RetentionReport {
         id: id.to_string(),
         sample_rate_hz: rate,
@@ -575,6 +775,7 @@ pub fn convert(
         short_tracks_dropped: cleaned.short_tracks_dropped,
         markers_per_frame,
         unfiltered_samples: cleaned.unfiltered_samples,
+        robot: robot_fit,
         written: include,
     };
     let trajectory = Trajectory {
@@ -751,6 +952,63 @@ mod tests {
             .join(name)
     }
 
+    const DEFAULT_TAKE: &str = "[default_take]\nsplit = \"train\"\nobject_total_mass_kg = 0.2268\n";
+
+    /// The built-in settings with a `[default_take]` (train, 0.2268 kg), so any take imports.
+    fn with_default_take() -> ImportConfig {
+        ImportConfig {
+            default_take: Some(TakeConfig {
+                split: Some(Split::Train),
+                object_total_mass_kg: Some(0.2268),
+                ..TakeConfig::default()
+            }),
+            ..ImportConfig::default()
+        }
+    }
+
+    #[test]
+    fn takes_need_their_split_and_mass_from_the_config() {
+        let take = motive::parse_take(&labelled_take(), Path::new("lab.csv")).unwrap();
+        let mut config = ImportConfig {
+            conversion: ConversionConfig {
+                markers: MarkerSource::Labeled,
+                ..ConversionConfig::default()
+            },
+            ..ImportConfig::default()
+        };
+        let msg = convert(&take, "lab", &config).unwrap_err().to_string();
+        assert!(
+            msg.contains(
+                "lab.csv: take \"lab\" is not listed in [takes] and there is no [default_take]"
+            ),
+            "{msg}"
+        );
+        config.takes.insert(
+            "lab".into(),
+            TakeConfig {
+                object_total_mass_kg: Some(0.3),
+                ..TakeConfig::default()
+            },
+        );
+        let msg = config.validate().unwrap_err();
+        assert!(msg.contains("takes.\"lab\".split is missing"), "{msg}");
+        // [default_take] completes what the take leaves out; the take's own values win.
+        config.default_take = Some(TakeConfig {
+            split: Some(Split::Test),
+            object_total_mass_kg: Some(0.5),
+            ..TakeConfig::default()
+        });
+        config.validate().unwrap();
+        let imported = convert(&take, "lab", &config).unwrap();
+        assert_eq!(imported.entry.split, Split::Test);
+        assert_eq!(imported.entry.object_total_mass_kg, 0.3);
+        assert_eq!(config.take("other").unwrap().object_total_mass_kg, 0.5);
+        // An excluded take needs no split.
+        config.default_take = None;
+        config.takes.get_mut("lab").unwrap().exclude = Some(true);
+        assert!(config.take("lab").unwrap().exclude);
+    }
+
     fn shipped_config() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/import.toml")
     }
@@ -782,16 +1040,17 @@ mod tests {
     #[test]
     fn the_shipped_config_spells_out_the_defaults() {
         let config = ImportConfig::load(&shipped_config()).unwrap();
-        let defaults = ImportConfig::default();
+        let defaults = with_default_take();
         assert_eq!(config.cleaning, defaults.cleaning);
         assert_eq!(config.conversion, defaults.conversion);
         assert_eq!(config.package, defaults.package);
+        assert_eq!(config.robot, defaults.robot);
         assert_eq!(config.takes.len(), 27);
         assert_eq!(
             config
                 .takes
                 .values()
-                .filter(|t| t.split == Split::Test && !t.exclude)
+                .filter(|t| t.split == Some(Split::Test) && t.exclude != Some(true))
                 .count(),
             4
         );
@@ -800,7 +1059,11 @@ mod tests {
     #[test]
     fn the_excerpt_imports_with_known_values() {
         let path = fixture("a30_m0.5_high_excerpt.csv.gz");
-        let config = ImportConfig::load(&shipped_config()).unwrap();
+        let mut config = ImportConfig::load(&shipped_config()).unwrap();
+        config.takes.insert(
+            "a30_m0.5_high_excerpt".into(),
+            config.takes["a30_m0.5_high"].clone(),
+        );
         let imported = import_take(&path, &config).unwrap();
         let (trajectory, report) = (&imported.trajectory, &imported.report);
         assert_eq!(trajectory.id, "a30_m0.5_high_excerpt");
@@ -829,8 +1092,8 @@ mod tests {
             dist(cup, [tool0[0], tool0[1] - 0.005, tool0[2]]) < 1e-4,
             "{cup:?}"
         );
-        assert_eq!(trajectory.meta.object_total_mass_kg, 0.2268); // from [takes] default: excerpt not listed
-                                                                  // Retention: every raw sample is either kept or dropped as spurious; nearly all are kept.
+        assert_eq!(trajectory.meta.object_total_mass_kg, 0.2268);
+        // Retention: every raw sample is either kept or dropped as spurious; nearly all are kept.
         let m = report.markers;
         assert_eq!(m.raw_samples, raw_marker_samples(&path));
         assert_eq!(m.observed_kept + m.spurious_samples, m.raw_samples);
@@ -846,7 +1109,7 @@ mod tests {
 
     #[test]
     fn millimetre_and_metre_exports_give_the_same_trajectory() {
-        let config = ImportConfig::default();
+        let config = with_default_take();
         let m = import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config)
             .unwrap()
             .trajectory;
@@ -866,7 +1129,7 @@ mod tests {
     #[test]
     fn trimming_to_motion_drops_the_settle_phase() {
         // packages-v1: the tool is still for the first 0.3 s (75 frames), then lifts.
-        let mut config = ImportConfig::default();
+        let mut config = with_default_take();
         config.conversion.trim_to_motion = true;
         let imported = import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config).unwrap();
         let kept = imported.report.frames_kept;
@@ -890,7 +1153,11 @@ mod tests {
             msg.contains("cleaning.marker_cutoff_hz = -2: expected a number >= 0"),
             "{msg}"
         );
-        std::fs::write(&path, "[conversion]\ntool_body = \"Gripper\"\n").unwrap();
+        std::fs::write(
+            &path,
+            format!("[conversion]\ntool_body = \"Gripper\"\n{DEFAULT_TAKE}"),
+        )
+        .unwrap();
         let config = ImportConfig::load(&path).unwrap();
         let msg = import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config)
             .unwrap_err()
@@ -900,7 +1167,11 @@ mod tests {
             "{msg}"
         );
         // A cut-off above the Nyquist frequency of the take is caught when the take's rate is known.
-        std::fs::write(&path, "[cleaning]\nmarker_cutoff_hz = 200.0\n").unwrap();
+        std::fs::write(
+            &path,
+            format!("[cleaning]\nmarker_cutoff_hz = 200.0\n{DEFAULT_TAKE}"),
+        )
+        .unwrap();
         let config = ImportConfig::load(&path).unwrap();
         let msg = import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config)
             .unwrap_err()
@@ -972,7 +1243,7 @@ mod tests {
     #[test]
     fn labelled_package_markers_exclude_the_rigid_bodies_own_markers() {
         let take = motive::parse_take(&labelled_take(), Path::new("lab.csv")).unwrap();
-        let mut config = ImportConfig::default();
+        let mut config = with_default_take();
         config.conversion.markers = MarkerSource::Labeled;
         let imported = convert(&take, "lab", &config).unwrap();
         let initial = &imported.trajectory.meta.initial_marker_positions_m;
@@ -987,6 +1258,54 @@ mod tests {
             msg.contains("lab.csv: no unlabeled marker columns"),
             "{msg}"
         );
+    }
+
+    #[test]
+    fn the_robot_transform_is_estimated_from_the_tool_body() {
+        // The tool of the synthetic take moves on a helix; the robot file holds the same motion
+        // in a robot frame with z up, shifted by (0.4, 0.15, 0) (packages-v1's frames).
+        let mut take = motive::parse_take(&labelled_take(), Path::new("lab.csv")).unwrap();
+        let helix = |k: usize| {
+            let a = k as f64 / 59.0 * std::f64::consts::TAU;
+            [0.1 * a.cos(), 0.05 * k as f64 / 59.0, 0.1 * a.sin()]
+        };
+        for (k, p) in take.rigid_bodies[0].position.iter_mut().enumerate() {
+            *p = Some(helix(k));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("lab_robot.csv");
+        let mut text = crate::robot::ROBOT_HEADER.join(",") + "\n";
+        for (k, t) in take.time.iter().enumerate() {
+            let p = helix(k);
+            // p_robot = R^T p_mocap + o, with R taking robot z (up) to mocap y.
+            let robot = [p[0] + 0.4, -p[2] + 0.15, p[1]];
+            text += &format!(
+                "{t},{},{},{},0,0,0,1,0,0,0,0,0,0,0,0,0\n",
+                robot[0], robot[1], robot[2]
+            );
+        }
+        std::fs::write(&path, text).unwrap();
+        let robot = read_robot(&path).unwrap();
+        let mut config = with_default_take();
+        config.conversion.markers = MarkerSource::Labeled;
+        config.cleaning.rigid_body_cutoff_hz = 0.0;
+        let imported = convert_with_robot(&take, "lab", &config, Some(&robot)).unwrap();
+        let fit = imported.report.robot.clone().expect("a robot fit");
+        assert!(fit.estimated && fit.rms_m < 1e-9, "{fit:?}");
+        let half = std::f64::consts::FRAC_1_SQRT_2;
+        let expected = [-half, 0.0, 0.0, half];
+        let sign = fit.rotation_xyzw[3].signum();
+        for (got, want) in fit.rotation_xyzw.iter().zip(expected) {
+            assert!((sign * got - want).abs() < 1e-9, "{fit:?}");
+        }
+        for (i, t) in [-0.4, 0.0, 0.15].into_iter().enumerate() {
+            assert!((fit.translation_m[i] - t).abs() < 1e-9, "{fit:?}");
+        }
+        let tool = &imported.trajectory.tool;
+        for k in [0, 30, 59] {
+            assert!(dist(tool.position[k], helix(k)) < 1e-9);
+        }
+        assert!(imported.report.to_string().contains("estimated transform"));
     }
 
     #[test]

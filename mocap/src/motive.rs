@@ -24,6 +24,14 @@ pub enum MotiveError {
         /// The underlying error.
         source: std::io::Error,
     },
+    /// The take is larger than an import handles (checked before allocating for it).
+    #[error("{}: {message}", path.display())]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// How large it is, the limit, and what to do.
+        message: String,
+    },
     /// The file does not follow the Motive CSV layout.
     #[error("{}: line {line}{}: {message}", path.display(), column.map(|c| format!(", column {c}")).unwrap_or_default())]
     Format {
@@ -141,18 +149,45 @@ impl MotiveTake {
     }
 }
 
-/// Reads a Motive CSV export (plain or gzip-compressed).
+/// Largest take text (decompressed) an import reads: 4 GiB.
+pub const MAX_TAKE_TEXT_BYTES: u64 = 4 << 30;
+/// Largest memory the parsed tracks of a take may need: 4 GiB (cleaning needs a few times this).
+pub const MAX_TRACK_BYTES: u64 = 4 << 30;
+
+fn gib(bytes: u64) -> f64 {
+    bytes as f64 / (1u64 << 30) as f64
+}
+
+/// Reads a Motive CSV export (plain or gzip-compressed), refusing files whose text exceeds
+/// [`MAX_TAKE_TEXT_BYTES`] before reading them whole.
 pub fn read_take(path: &Path) -> Result<MotiveTake, MotiveError> {
     let io_err = |source| MotiveError::Io {
         path: path.to_path_buf(),
         source,
     };
+    let too_large = |what: &str| {
+        MotiveError::TooLarge {
+        path: path.to_path_buf(),
+        message: format!(
+            "{what} more than the {:.0} GiB an import reads; expected a shorter export (fewer frames or markers)",
+            gib(MAX_TAKE_TEXT_BYTES)
+        ),
+    }
+    };
+    let size = std::fs::metadata(path).map_err(io_err)?.len();
+    if size > MAX_TAKE_TEXT_BYTES {
+        return Err(too_large(&format!("the file has {:.1} GiB,", gib(size))));
+    }
     let bytes = std::fs::read(path).map_err(io_err)?;
     let text = if bytes.starts_with(&[0x1f, 0x8b]) {
         let mut out = String::new();
         flate2::read::MultiGzDecoder::new(bytes.as_slice())
+            .take(MAX_TAKE_TEXT_BYTES + 1)
             .read_to_string(&mut out)
             .map_err(io_err)?;
+        if out.len() as u64 > MAX_TAKE_TEXT_BYTES {
+            return Err(too_large("the file decompresses to"));
+        }
         out
     } else {
         String::from_utf8(bytes).map_err(|e| {
@@ -244,6 +279,29 @@ pub fn parse_take(text: &str, path: &Path) -> Result<MotiveTake, MotiveError> {
     }
 
     let (slots, mut rigid_bodies, mut markers) = build_slots(&rows, &err)?;
+    // The parsed tracks: per data row, a time, a rotation and a position per rigid body and a
+    // position per marker, each an `Option` of floats.
+    let data_rows = lines
+        .iter()
+        .skip(7)
+        .rposition(|line| !line.trim().is_empty())
+        .map_or(0, |last| last as u64 + 1);
+    let per_row = 8
+        + rigid_bodies.len() * (size_of::<Option<[f64; 4]>>() + size_of::<Option<[f64; 3]>>())
+        + markers.len() * size_of::<Option<[f64; 3]>>();
+    let needed = data_rows.saturating_mul(per_row as u64);
+    if needed > MAX_TRACK_BYTES {
+        return Err(MotiveError::TooLarge {
+            path: path.to_path_buf(),
+            message: format!(
+                "{data_rows} data rows of {} rigid bodies and {} marker columns would need {:.1} GiB once parsed, more than the {:.0} GiB an import allows; expected a shorter export (fewer frames or markers)",
+                rigid_bodies.len(),
+                markers.len(),
+                gib(needed),
+                gib(MAX_TRACK_BYTES)
+            ),
+        });
+    }
 
     let unit = header.length_unit.to_meters();
     let mut time = Vec::new();
@@ -600,6 +658,47 @@ Frame,Time (Seconds),X,Y,Z,W,X,Y,Z,,X,Y,Z,X,Y,Z\n\
 
     fn message(text: &str) -> String {
         parse(text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_take_too_large_to_parse_is_refused_before_allocating() {
+        // 100 000 marker columns x 1 400 rows would need 4.2 GiB of tracks: refused from the
+        // header and the line count alone (the short data rows are never read).
+        let markers = 100_000;
+        let mut text = String::from(
+            "Format Version,1.23,Capture Frame Rate,100,Export Frame Rate,100,Rotation Type,Quaternion,Length Units,Meters\n\n",
+        );
+        let mut rows = [
+            String::from(",Type"),
+            String::from(",Name"),
+            String::from(",ID"),
+            String::from(","),
+            String::from("Frame,Time (Seconds)"),
+        ];
+        for m in 0..markers {
+            for axis in ["X", "Y", "Z"] {
+                for (row, cell) in rows.iter_mut().zip([
+                    "Marker".to_string(),
+                    format!("Unlabeled {m}"),
+                    m.to_string(),
+                    "Position".into(),
+                    axis.into(),
+                ]) {
+                    row.push(',');
+                    row.push_str(&cell);
+                }
+            }
+        }
+        for row in rows {
+            text += &row;
+            text.push('\n');
+        }
+        text += &"0,0\n".repeat(1400);
+        let msg = message(&text);
+        assert!(
+            msg.contains("take.csv: 1400 data rows of 0 rigid bodies and 100000 marker columns would need 4.2 GiB"),
+            "{msg}"
+        );
     }
 
     #[test]

@@ -2,13 +2,12 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::{Args, Subcommand};
 use rayon::prelude::*;
 use rlpkg_mocap::clean::{percent, MarkerRetention};
-use rlpkg_mocap::dataset::write_manifest;
-use rlpkg_mocap::import::{import_take, take_id, ImportConfig, ImportedTake};
-use rlpkg_mocap::Dataset;
+use rlpkg_mocap::dataset::{clean_leftovers, write_manifest};
+use rlpkg_mocap::import::{import_take_with_robot, take_id, ImportConfig, ImportedTake};
+use rlpkg_mocap::{DataError, Dataset, ManifestEntry};
 
 use crate::error::input_error;
 
@@ -17,7 +16,8 @@ use crate::error::input_error;
 pub enum DataCommand {
     /// Convert OptiTrack Motive CSV exports (.csv or .csv.gz) into a dataset folder: clean the
     /// markers (low-pass, re-identification, spurious rejection, gap filling), print a retention
-    /// report per take, write one trajectory folder per take and the manifest.
+    /// report per take, write one trajectory folder per take and the manifest. With --robot, the
+    /// tool track is the robot's commanded motion instead of the Motive tool rigid body.
     ImportMotive(ImportMotiveArgs),
 }
 
@@ -30,9 +30,16 @@ pub struct ImportMotiveArgs {
     /// Dataset folder to write (created if needed; an existing manifest keeps its other entries).
     #[arg(long)]
     pub out: PathBuf,
-    /// Cleaning and conversion settings (default: the built-in values of configs/import.toml).
+    /// Cleaning and conversion settings, with every take listed in [takes] (or a [default_take]);
+    /// see configs/import.toml.
     #[arg(long)]
-    pub config: Option<PathBuf>,
+    pub config: PathBuf,
+    /// Robot trajectory files named `<take id>_robot.csv` (commanded tool pose, velocity and
+    /// acceleration in the robot base frame; see the README). When given, every take needs one,
+    /// and its command, carried into the mocap frame by the config's [robot] transform (or one
+    /// estimated from the Motive tool rigid body), becomes the tool track.
+    #[arg(long, num_args = 1..)]
+    pub robot: Vec<PathBuf>,
 }
 
 /// Runs a data subcommand.
@@ -42,11 +49,11 @@ pub fn run(command: DataCommand) -> anyhow::Result<()> {
     }
 }
 
+/// The file-name suffix that pairs a robot trajectory file with its take.
+const ROBOT_SUFFIX: &str = "_robot.csv";
+
 fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
-    let config = match &args.config {
-        Some(path) => ImportConfig::load(path).map_err(input_error)?,
-        None => ImportConfig::default(),
-    };
+    let config = ImportConfig::load(&args.config).map_err(input_error)?;
     let mut ids: Vec<String> = Vec::new();
     for path in &args.takes {
         let id = take_id(path);
@@ -62,7 +69,23 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
                 path.display()
             )));
         }
+        config
+            .take(&id)
+            .map_err(|message| input_error(format!("{}: {message}", args.config.display())))?;
         ids.push(id);
+    }
+    let robots = pair_robot_files(&ids, &args.robot)?;
+    if args.out.exists() && !args.out.is_dir() {
+        return Err(input_error(format!(
+            "{}: exists and is not a folder; expected a dataset folder (--out) or nothing",
+            args.out.display()
+        )));
+    }
+
+    // What an interrupted earlier import left behind, before the manifest is read: a trajectory
+    // folder moved aside is put back first.
+    for line in clean_leftovers(&args.out).map_err(input_error)? {
+        println!("{line}");
     }
     // An existing dataset keeps the entries that are not re-imported.
     let mut entries = if args.out.join("manifest.toml").exists() {
@@ -75,7 +98,8 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
     let imported: Vec<ImportedTake> = args
         .takes
         .par_iter()
-        .map(|path| import_take(path, &config))
+        .zip(&robots)
+        .map(|(path, robot)| import_take_with_robot(path, robot.as_deref(), &config))
         .collect::<Result<_, _>>()
         .map_err(input_error)?;
 
@@ -92,15 +116,6 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         total.unrecovered += m.unrecovered;
         frames_total += take.report.frames_total;
         frames_kept += take.report.frames_kept;
-        if !take.include {
-            continue;
-        }
-        let dir = args.out.join(&take.entry.id);
-        take.trajectory
-            .save(&dir)
-            .with_context(|| format!("writing trajectory {}", dir.display()))?;
-        entries.retain(|e| e.id != take.entry.id);
-        entries.push(take.entry.clone());
     }
     println!(
         "total over {} take(s): frames kept {frames_kept} of {frames_total} ({:.1} %); marker samples kept {} of {} ({:.1} %), written incl. filled {} ({:.1} %)",
@@ -112,9 +127,16 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         total.observed_kept + total.velocity_filled + total.interpolated,
         total.output_percent()
     );
+    let created = !args.out.exists();
     std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    write_manifest(&args.out, &entries).context("writing the manifest")?;
+        .map_err(|err| input_error(format!("{}: {err}", args.out.display())))?;
+    if let Err(err) = write_takes(&args.out, &imported, &mut entries) {
+        if created {
+            // Best effort: a folder this run created and left empty goes again.
+            let _ = std::fs::remove_dir(&args.out);
+        }
+        return Err(input_error(err));
+    }
     let written = imported.iter().filter(|t| t.include).count();
     println!(
         "wrote {written} trajectory folder(s) and {} ({} entries)",
@@ -122,4 +144,67 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         entries.len()
     );
     Ok(())
+}
+
+/// Writes the included takes into `out`. Each trajectory folder appears whole (written beside it,
+/// then renamed), and its manifest entry only after it: an interrupted import leaves the takes
+/// finished so far, complete and listed, and leftovers that the next run removes.
+fn write_takes(
+    out: &std::path::Path,
+    imported: &[ImportedTake],
+    entries: &mut Vec<ManifestEntry>,
+) -> Result<(), DataError> {
+    for take in imported.iter().filter(|t| t.include) {
+        take.trajectory.save_folder(out)?;
+        entries.retain(|e| e.id != take.entry.id);
+        entries.push(take.entry.clone());
+        write_manifest(out, entries)?;
+    }
+    if !out.join("manifest.toml").exists() {
+        write_manifest(out, entries)?;
+    }
+    Ok(())
+}
+
+/// The robot file of each take (in the order of `ids`), matched by the name
+/// `<take id>_robot.csv`; all `None` without robot files. Every robot file must match a take and,
+/// when any is given, every take needs its own.
+fn pair_robot_files(ids: &[String], robots: &[PathBuf]) -> anyhow::Result<Vec<Option<PathBuf>>> {
+    let mut paired: Vec<Option<PathBuf>> = vec![None; ids.len()];
+    if robots.is_empty() {
+        return Ok(paired);
+    }
+    for robot in robots {
+        let name = robot
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let Some(id) = name.strip_suffix(ROBOT_SUFFIX) else {
+            return Err(input_error(format!(
+                "{}: a robot file must be named <take id>{ROBOT_SUFFIX}",
+                robot.display()
+            )));
+        };
+        let Some(index) = ids.iter().position(|i| i == id) else {
+            return Err(input_error(format!(
+                "{}: no take '{id}' among the takes given; expected the robot file of one of: {}",
+                robot.display(),
+                ids.join(", ")
+            )));
+        };
+        if paired[index].is_some() {
+            return Err(input_error(format!(
+                "{}: take '{id}' already has a robot file; expected one per take",
+                robot.display()
+            )));
+        }
+        paired[index] = Some(robot.clone());
+    }
+    if let Some(index) = paired.iter().position(Option::is_none) {
+        return Err(input_error(format!(
+            "take '{}' has no robot file; with --robot every take needs its {}{ROBOT_SUFFIX}",
+            ids[index], ids[index]
+        )));
+    }
+    Ok(paired)
 }
