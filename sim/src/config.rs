@@ -324,7 +324,7 @@ impl Default for SealConfig {
     fn default() -> Self {
         SealConfig {
             enabled: false,
-            vacuum_kpa: 10.0,
+            vacuum_kpa: 20.0,
             lip_radius_m: 0.02,
             friction: 0.5,
             lip_strength_ratio: 3.0,

@@ -357,6 +357,10 @@ mod tests {
         let mut c = SceneConfig::preset("physical").unwrap();
         c.package.grid = [6, 7];
         c.seal.enabled = true;
+        c.seal.vacuum_kpa = 10.0;
+        c.seal.lip_radius_m = 0.02;
+        c.seal.friction = 0.5;
+        c.seal.lip_strength_ratio = 3.0;
         let model = Model::new(&c).unwrap();
         let cup = [0.15, 0.51, 0.127];
         let spec = EnvSpec {
