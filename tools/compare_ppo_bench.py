@@ -27,6 +27,7 @@ def main():
     jax_script = Path(__file__).with_name("jax_ppo_bench.py")
     sizes = [int(s) for s in args.minibatch.split(",")]
     results = {}  # (name, minibatch) -> [samples/s]
+    cpu_results = {}  # (name, minibatch) -> [samples per CPU second]
     for round_index in range(args.rounds):
         for minibatch in sizes:
             minibatches = str(max(3, args.samples // minibatch))
@@ -37,6 +38,9 @@ def main():
             )
             for row in json.loads(out.stdout)["ppo_update"]:
                 results.setdefault((row["backend"], minibatch), []).append(row["samples_per_second"])
+                if row.get("samples_per_cpu_second"):
+                    cpu_results.setdefault((row["backend"], minibatch), []).append(
+                        row["samples_per_cpu_second"])
             out = subprocess.run(
                 [sys.executable, str(jax_script), "--minibatch", str(minibatch),
                  "--minibatches", minibatches],
@@ -44,20 +48,28 @@ def main():
             )
             row = json.loads(out.stdout)
             results.setdefault(("jax", minibatch), []).append(row["samples_per_second"])
+            cpu_results.setdefault(("jax", minibatch), []).append(row["samples_per_cpu_second"])
             print(f"round {round_index + 1} minibatch {minibatch}: " + ", ".join(
                 f"{name} {values[-1]:.0f}" for (name, mb), values in results.items() if mb == minibatch
             ), flush=True)
     summary = []
     for minibatch in sizes:
         jax = statistics.median(results[("jax", minibatch)])
+        jax_cpu = statistics.median(cpu_results[("jax", minibatch)])
         for (name, mb), values in results.items():
             if mb != minibatch:
                 continue
             median = statistics.median(values)
-            summary.append({
+            row = {
                 "name": name, "minibatch": mb, "median_samples_per_second": round(median),
                 "runs": [round(v) for v in values], "ratio_to_jax": round(median / jax, 3),
-            })
+            }
+            # Throughput per CPU second is what load from other processes does not change.
+            if (name, mb) in cpu_results:
+                cpu = statistics.median(cpu_results[(name, mb)])
+                row["median_samples_per_cpu_second"] = round(cpu)
+                row["cpu_ratio_to_jax"] = round(cpu / jax_cpu, 3)
+            summary.append(row)
     print(json.dumps(summary, indent=1))
 
 

@@ -44,6 +44,9 @@ pub struct PpoBenchResult {
     pub samples_per_second: f64,
     /// Milliseconds per minibatch.
     pub ms_per_minibatch: f64,
+    /// Samples per second of CPU time summed over the process's threads (Linux only): the
+    /// throughput the update would have with its cores to itself, whatever else runs.
+    pub samples_per_cpu_second: Option<f64>,
     /// Shares of the update's time per phase (they sum to 1 up to the loop's own overhead).
     pub shares: PhaseShares,
 }
@@ -108,6 +111,7 @@ pub fn ppo_update_throughput(config: &PpoBenchConfig) -> PpoBenchResult {
     let mut shuffle_rng = ChaCha8Rng::seed_from_u64(1);
     ppo.update(&storage, &mut shuffle_rng); // warm-up
     let mut phases = PhaseTimes::default();
+    let cpu_start = process_cpu_seconds();
     let start = Instant::now();
     for _ in 0..config.minibatches {
         ppo.update(&storage, &mut shuffle_rng);
@@ -115,12 +119,16 @@ pub fn ppo_update_throughput(config: &PpoBenchConfig) -> PpoBenchResult {
     }
     let seconds = start.elapsed().as_secs_f64();
     let samples = (config.minibatch * config.minibatches) as f64;
+    let cpu_seconds = cpu_start
+        .zip(process_cpu_seconds())
+        .map(|(start, end)| end - start);
     PpoBenchResult {
         backend: config.backend.name().to_string(),
         config: config.clone(),
         parameters,
         samples_per_second: samples / seconds,
         ms_per_minibatch: 1e3 * seconds / config.minibatches as f64,
+        samples_per_cpu_second: cpu_seconds.filter(|&c| c > 0.0).map(|c| samples / c),
         shares: PhaseShares {
             batch: phases.batch / seconds,
             forward: phases.forward / seconds,
@@ -128,6 +136,17 @@ pub fn ppo_update_throughput(config: &PpoBenchConfig) -> PpoBenchResult {
             optimiser: phases.optimiser / seconds,
         },
     }
+}
+
+/// CPU time used so far by all threads of this process, from the scheduler's per-thread
+/// counters (`/proc/self/task/*/schedstat`, nanoseconds on the CPU); `None` where there are none.
+fn process_cpu_seconds() -> Option<f64> {
+    let mut nanoseconds = 0u64;
+    for task in std::fs::read_dir("/proc/self/task").ok()? {
+        let text = std::fs::read_to_string(task.ok()?.path().join("schedstat")).ok()?;
+        nanoseconds += text.split_whitespace().next()?.parse::<u64>().ok()?;
+    }
+    Some(nanoseconds as f64 * 1e-9)
 }
 
 /// Measured throughput of one matrix product on the backend (no autodiff).

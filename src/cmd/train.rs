@@ -182,7 +182,7 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
         });
         let shares = &result.shares;
         eprintln!(
-            "ppo update [{}] {}-{:?}-{} ({} parameters), minibatch {}: {:.0} samples/s ({:.1} ms/minibatch; forward {:.0} %, backward {:.0} %, optimiser {:.0} %, batching {:.0} %)",
+            "ppo update [{}] {}-{:?}-{} ({} parameters), minibatch {}: {:.0} samples/s ({:.1} ms/minibatch; forward {:.0} %, backward {:.0} %, optimiser {:.0} %, batching {:.0} %; {:.0} samples per CPU second)",
             result.backend,
             args.obs_dim,
             args.hidden,
@@ -195,6 +195,7 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
             100.0 * shares.backward,
             100.0 * shares.optimiser,
             100.0 * shares.batch,
+            result.samples_per_cpu_second.unwrap_or(f64::NAN),
         );
         updates.push(result);
         // The layer products of the update: the forward x W of the first two layers and the
