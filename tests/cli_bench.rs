@@ -47,3 +47,60 @@ fn bench_sim_rejects_a_malformed_grid_with_exit_code_2() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("--grid"), "{stderr}");
 }
+
+#[test]
+fn bench_ppo_prints_throughput_and_phase_shares_per_backend() {
+    let out = rlpkg(&[
+        "bench",
+        "ppo",
+        "--backend",
+        "flex,ndarray",
+        "--minibatch",
+        "64",
+        "--minibatches",
+        "2",
+        "--obs-dim",
+        "5",
+        "--action-dim",
+        "2",
+        "--hidden",
+        "16,8",
+        "--env-steps",
+        "0",
+        "--json",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+    let updates = json["ppo_update"].as_array().expect("ppo_update rows");
+    let backends: Vec<&str> = updates
+        .iter()
+        .map(|row| row["backend"].as_str().unwrap())
+        .collect();
+    assert_eq!(backends, ["flex", "ndarray"]);
+    for row in updates {
+        // A 5-16-8-2 actor, a 5-16-8-1 critic and two log-stds.
+        let actor = (5 * 16 + 16) + (16 * 8 + 8) + (8 * 2 + 2);
+        let critic = (5 * 16 + 16) + (16 * 8 + 8) + (8 + 1);
+        assert_eq!(row["parameters"], actor + critic + 2);
+        assert!(row["samples_per_second"].as_f64().unwrap() > 0.0);
+        let shares = &row["shares"];
+        let sum: f64 = ["batch", "forward", "backward", "optimiser"]
+            .iter()
+            .map(|k| shares[k].as_f64().unwrap())
+            .sum();
+        assert!(sum > 0.5 && sum <= 1.0 + 1e-9, "{shares}");
+        assert!(shares["backward"].as_f64().unwrap() > 0.0);
+    }
+    // Three layer products per backend.
+    assert_eq!(json["matmul"].as_array().unwrap().len(), 6);
+    assert!(json["matmul"][0]["gflops"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn bench_ppo_rejects_an_unknown_backend_with_exit_code_2() {
+    let out = rlpkg(&["bench", "ppo", "--backend", "cuda", "--env-steps", "0"]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("--backend cuda"), "{stderr}");
+}

@@ -93,6 +93,19 @@ fn train_eval_and_resume() {
         })
         .count();
     assert!(events >= 1);
+    // The wall-time shares of the update and the environment are logged under perf/.
+    let event_bytes: Vec<u8> = std::fs::read_dir(&run)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().contains("tfevents"))
+        .flat_map(|p| std::fs::read(p).unwrap())
+        .collect();
+    for tag in ["perf/update_share", "perf/env_step_share"] {
+        assert!(
+            event_bytes.windows(tag.len()).any(|w| w == tag.as_bytes()),
+            "{tag} missing from the TensorBoard events"
+        );
+    }
 
     let summary = eval_json(dir.path(), "runs/tiny");
     assert_eq!(summary["env_id"], "CartPole-v1");

@@ -6,7 +6,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use crate::algorithms::Ppo;
+use crate::algorithms::{PhaseTimes, Ppo};
 use crate::config::{LrSchedule, PpoConfig};
 use crate::export::Activation;
 use crate::modules::ActorCritic;
@@ -44,6 +44,24 @@ pub struct PpoBenchResult {
     pub samples_per_second: f64,
     /// Milliseconds per minibatch.
     pub ms_per_minibatch: f64,
+    /// Samples per second of CPU time summed over the process's threads (Linux only): the
+    /// throughput the update would have with its cores to itself, whatever else runs.
+    pub samples_per_cpu_second: Option<f64>,
+    /// Shares of the update's time per phase (they sum to 1 up to the loop's own overhead).
+    pub shares: PhaseShares,
+}
+
+/// Fractions of the timed update spent in each phase.
+#[derive(Debug, Clone, Serialize)]
+pub struct PhaseShares {
+    /// Gathering minibatch rows into tensors.
+    pub batch: f64,
+    /// Forward passes, loss and diagnostics read-back.
+    pub forward: f64,
+    /// Backpropagation.
+    pub backward: f64,
+    /// Gradient clipping and Adam.
+    pub optimiser: f64,
 }
 
 /// Times PPO minibatch updates (forward, backward, global grad clip, Adam) on random data.
@@ -92,18 +110,95 @@ pub fn ppo_update_throughput(config: &PpoBenchConfig) -> PpoBenchResult {
     fill(&mut storage.returns, 1.0);
     let mut shuffle_rng = ChaCha8Rng::seed_from_u64(1);
     ppo.update(&storage, &mut shuffle_rng); // warm-up
+    let mut phases = PhaseTimes::default();
+    let cpu_start = process_cpu_seconds();
     let start = Instant::now();
     for _ in 0..config.minibatches {
         ppo.update(&storage, &mut shuffle_rng);
+        phases.add(&ppo.times);
     }
     let seconds = start.elapsed().as_secs_f64();
     let samples = (config.minibatch * config.minibatches) as f64;
+    let cpu_seconds = cpu_start
+        .zip(process_cpu_seconds())
+        .map(|(start, end)| end - start);
     PpoBenchResult {
         backend: config.backend.name().to_string(),
         config: config.clone(),
         parameters,
         samples_per_second: samples / seconds,
         ms_per_minibatch: 1e3 * seconds / config.minibatches as f64,
+        samples_per_cpu_second: cpu_seconds.filter(|&c| c > 0.0).map(|c| samples / c),
+        shares: PhaseShares {
+            batch: phases.batch / seconds,
+            forward: phases.forward / seconds,
+            backward: phases.backward / seconds,
+            optimiser: phases.optimiser / seconds,
+        },
+    }
+}
+
+/// CPU time used so far by all threads of this process, from the scheduler's per-thread
+/// counters (`/proc/self/task/*/schedstat`, nanoseconds on the CPU); `None` where there are none.
+fn process_cpu_seconds() -> Option<f64> {
+    let mut nanoseconds = 0u64;
+    for task in std::fs::read_dir("/proc/self/task").ok()? {
+        let text = std::fs::read_to_string(task.ok()?.path().join("schedstat")).ok()?;
+        nanoseconds += text.split_whitespace().next()?.parse::<u64>().ok()?;
+    }
+    Some(nanoseconds as f64 * 1e-9)
+}
+
+/// Measured throughput of one matrix product on the backend (no autodiff).
+#[derive(Debug, Clone, Serialize)]
+pub struct MatmulBenchResult {
+    /// Backend name.
+    pub backend: String,
+    /// `[m, k] x [k, n]`.
+    pub m: usize,
+    /// Inner dimension.
+    pub k: usize,
+    /// Output columns.
+    pub n: usize,
+    /// The left operand is a transposed view (as in a weight gradient `x^T dz`).
+    pub transposed_lhs: bool,
+    /// 2 m k n / seconds, in 1e9 per second.
+    pub gflops: f64,
+}
+
+/// Times `repeats` products of the given shape (after one warm-up) on `backend`.
+pub fn matmul_throughput(
+    backend: Backend,
+    [m, k, n]: [usize; 3],
+    transposed_lhs: bool,
+    repeats: usize,
+) -> MatmulBenchResult {
+    use burn::tensor::{Distribution, Tensor};
+    let device = backend.device();
+    let lhs = |_| {
+        if transposed_lhs {
+            Tensor::<2>::random([k, m], Distribution::Default, &device).transpose()
+        } else {
+            Tensor::<2>::random([m, k], Distribution::Default, &device)
+        }
+    };
+    let rhs = Tensor::<2>::random([k, n], Distribution::Default, &device);
+    let (a, b) = (lhs(()), rhs.clone());
+    let _ = a.matmul(b).into_data();
+    let operands: Vec<_> = (0..repeats).map(|_| (lhs(()), rhs.clone())).collect();
+    let start = Instant::now();
+    for (a, b) in operands {
+        // Flex computes eagerly; reading one value keeps a lazy backend honest too.
+        let _ = a.matmul(b).slice([0..1, 0..1]).into_data();
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    MatmulBenchResult {
+        backend: backend.name().to_string(),
+        m,
+        k,
+        n,
+        transposed_lhs,
+        gflops: 2.0 * (m * k * n * repeats) as f64 / seconds / 1e9,
     }
 }
 

@@ -154,7 +154,9 @@ pub struct PpoBenchArgs {
 /// `rlpkg bench ppo`: PPO update throughput (forward + backward + global clip + Adam) per backend,
 /// and CartPole / Pendulum steps per second.
 pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
-    use rlpkg_agents::bench::{env_throughput, ppo_update_throughput, PpoBenchConfig};
+    use rlpkg_agents::bench::{
+        env_throughput, matmul_throughput, ppo_update_throughput, PpoBenchConfig,
+    };
     if args.minibatch == 0 || args.minibatches == 0 || args.obs_dim == 0 || args.action_dim == 0 {
         return Err(input_error(
             "--minibatch, --minibatches, --obs-dim and --action-dim: expected at least 1",
@@ -166,6 +168,7 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
         ));
     }
     let mut updates = Vec::new();
+    let mut matmuls = Vec::new();
     for name in &args.backend {
         let backend = rlpkg_agents::Backend::parse(name)
             .ok_or_else(|| input_error(format!("--backend {name}: expected flex or ndarray")))?;
@@ -177,8 +180,9 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
             minibatches: args.minibatches,
             backend,
         });
+        let shares = &result.shares;
         eprintln!(
-            "ppo update [{}] {}-{:?}-{} ({} parameters), minibatch {}: {:.0} samples/s ({:.1} ms/minibatch)",
+            "ppo update [{}] {}-{:?}-{} ({} parameters), minibatch {}: {:.0} samples/s ({:.1} ms/minibatch; forward {:.0} %, backward {:.0} %, optimiser {:.0} %, batching {:.0} %; {:.0} samples per CPU second)",
             result.backend,
             args.obs_dim,
             args.hidden,
@@ -186,9 +190,36 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
             result.parameters,
             args.minibatch,
             result.samples_per_second,
-            result.ms_per_minibatch
+            result.ms_per_minibatch,
+            100.0 * shares.forward,
+            100.0 * shares.backward,
+            100.0 * shares.optimiser,
+            100.0 * shares.batch,
+            result.samples_per_cpu_second.unwrap_or(f64::NAN),
         );
         updates.push(result);
+        // The layer products of the update: the forward x W of the first two layers and the
+        // weight gradient x^T dz of the second.
+        let (m, h0) = (args.minibatch, args.hidden[0]);
+        let h1 = args.hidden.get(1).copied().unwrap_or(h0);
+        for (shape, transposed) in [
+            ([m, args.obs_dim, h0], false),
+            ([m, h0, h1], false),
+            ([h0, m, h1], true),
+        ] {
+            let result = matmul_throughput(backend, shape, transposed, 5);
+            eprintln!(
+                "matmul [{}] {}x{}{} x {}x{}: {:.1} GFLOP/s",
+                result.backend,
+                shape[0],
+                shape[1],
+                if transposed { " (transposed view)" } else { "" },
+                shape[1],
+                shape[2],
+                result.gflops
+            );
+            matmuls.push(result);
+        }
     }
     let mut envs = Vec::new();
     if args.env_steps > 0 {
@@ -202,7 +233,7 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
         }
     }
     if args.json {
-        let json = serde_json::json!({ "ppo_update": updates, "env": envs });
+        let json = serde_json::json!({ "ppo_update": updates, "matmul": matmuls, "env": envs });
         println!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(())

@@ -9,6 +9,7 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
+use super::dense::dense_tanh;
 use crate::export::{Activation, DenseLayer};
 
 /// Separate actor and critic MLPs plus the Gaussian head's log-std (absent for discrete actions).
@@ -105,6 +106,19 @@ impl ActorCritic {
     }
 }
 
+#[cfg(test)]
+impl ActorCritic {
+    /// [`ActorCritic::actor`] through burn's own layer and activation ops.
+    pub(crate) fn reference_actor(&self, obs: Tensor<2>) -> Tensor<2> {
+        reference_forward(&self.actor, self.activation, obs)
+    }
+
+    /// [`ActorCritic::value`] through burn's own layer and activation ops.
+    pub(crate) fn reference_value(&self, obs: Tensor<2>) -> Tensor<1> {
+        reference_forward(&self.critic, self.activation, obs).squeeze_dim(1)
+    }
+}
+
 /// A tensor's values on the host.
 pub(crate) fn to_host<const D: usize>(tensor: Tensor<D>) -> Vec<f32> {
     tensor
@@ -135,6 +149,28 @@ fn apply_activation(activation: Activation, x: Tensor<2>) -> Tensor<2> {
 }
 
 fn forward(layers: &[Linear], activation: Activation, mut x: Tensor<2>) -> Tensor<2> {
+    let last = layers.len() - 1;
+    for (i, layer) in layers.iter().enumerate() {
+        x = match (&layer.bias, activation) {
+            // Hidden tanh layers are one fused op (see `dense`).
+            (Some(bias), Activation::Tanh) if i < last => {
+                dense_tanh(x, layer.weight.val(), bias.val())
+            }
+            _ if i < last => apply_activation(activation, layer.forward(x)),
+            _ => layer.forward(x),
+        };
+    }
+    x
+}
+
+/// The forward pass from burn's own layer and activation ops: the reference the fused layers
+/// are checked against.
+#[cfg(test)]
+pub(crate) fn reference_forward(
+    layers: &[Linear],
+    activation: Activation,
+    mut x: Tensor<2>,
+) -> Tensor<2> {
     let last = layers.len() - 1;
     for (i, layer) in layers.iter().enumerate() {
         x = layer.forward(x);

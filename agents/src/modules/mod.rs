@@ -2,6 +2,7 @@
 //! normalisers whose statistics are saved with the model.
 
 mod actor_critic;
+pub mod dense;
 pub mod distributions;
 mod normalizer;
 

@@ -5,7 +5,7 @@ mod on_policy;
 mod policy;
 
 pub use checkpoint::{latest_checkpoint, CONFIG_FILE};
-pub use on_policy::{TrainSummary, Trainer, UpdateLog};
+pub use on_policy::{TrainSummary, Trainer, UpdateLog, UpdateTiming};
 pub use policy::{evaluate_run, load_policy_graph, EvalSummary, TrainedPolicy};
 
 #[cfg(test)]

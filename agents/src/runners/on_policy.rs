@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use rlpkg_env::{EnvSpec, SpaceKind, StepBuffers, VecEnv};
 use tensorboard_rs::summary_writer::SummaryWriter;
 
-use crate::algorithms::{Ppo, UpdateStats};
+use crate::algorithms::{PhaseTimes, Ppo, UpdateStats};
 use crate::config::{config_hash, ActivationName, TrainConfig, TransformName};
 use crate::export::{ActionTransform, Activation, ObsNormaliser};
 use crate::modules::distributions::{
@@ -41,6 +41,19 @@ pub struct UpdateLog {
     pub stats: UpdateStats,
     /// Explained variance of the rollout's values.
     pub explained_variance: f32,
+}
+
+/// Where the wall time of the last update went (seconds), for the `perf/` scalars.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct UpdateTiming {
+    /// Collecting the rollout (environment steps, policy inference, GAE).
+    pub rollout: f64,
+    /// The part of the rollout spent inside the environment's `step`.
+    pub env_step: f64,
+    /// The PPO update (all epochs and minibatches).
+    pub update: f64,
+    /// The update's phases.
+    pub phases: PhaseTimes,
 }
 
 /// What a training call did.
@@ -78,6 +91,9 @@ pub struct Trainer {
     pub(super) running_lengths: Vec<usize>,
     pub(super) recent_returns: VecDeque<f32>,
     device: Device,
+    /// Where the time of the last update went.
+    pub timing: UpdateTiming,
+    env_step_seconds: f64,
 }
 
 impl Trainer {
@@ -164,6 +180,8 @@ impl Trainer {
             config,
             config_text,
             device,
+            timing: UpdateTiming::default(),
+            env_step_seconds: 0.0,
         })
     }
 
@@ -224,8 +242,17 @@ impl Trainer {
     pub fn run_update(&mut self) -> Result<UpdateLog, AgentError> {
         let num_updates = self.config.num_updates();
         self.ppo.anneal(self.update, num_updates);
+        let start = Instant::now();
+        self.env_step_seconds = 0.0;
         let (episode_returns, episode_lengths) = self.collect_rollout()?;
+        let rollout_done = Instant::now();
         let stats = self.ppo.update(&self.storage, &mut self.rng);
+        self.timing = UpdateTiming {
+            rollout: (rollout_done - start).as_secs_f64(),
+            env_step: self.env_step_seconds,
+            update: rollout_done.elapsed().as_secs_f64(),
+            phases: self.ppo.times,
+        };
         self.update += 1;
         Ok(UpdateLog {
             update: self.update,
@@ -290,7 +317,9 @@ impl Trainer {
                 }
                 None => actions,
             };
+            let env_start = Instant::now();
             self.env.step(&env_actions, &mut self.buffers)?;
+            self.env_step_seconds += env_start.elapsed().as_secs_f64();
             self.global_step += n as u64;
 
             let done: Vec<bool> = (0..n).map(|i| self.buffers.done(i)).collect();
@@ -380,6 +409,7 @@ impl Trainer {
             let sps =
                 (self.global_step - start_step) as f64 / start.elapsed().as_secs_f64().max(1e-9);
             write_scalars(&mut writer, &log, sps);
+            write_perf_scalars(&mut writer, &self.timing, log.global_step as usize);
             bar.set_position(self.global_step);
             bar.set_message(format!(
                 "{sps:.0} SPS | mean return {:.1}",
@@ -433,4 +463,30 @@ fn write_scalars(writer: &mut SummaryWriter, log: &UpdateLog, sps: f64) {
     writer.add_scalar("losses/clipfrac", s.clip_fraction, step);
     writer.add_scalar("losses/grad_norm", s.grad_norm, step);
     writer.add_scalar("losses/explained_variance", log.explained_variance, step);
+}
+
+/// `perf/`: wall-time shares of one rollout + update (environment steps, the rest of the rollout,
+/// the PPO update, and the update's phases) and the update's seconds.
+fn write_perf_scalars(writer: &mut SummaryWriter, timing: &UpdateTiming, step: usize) {
+    let total = (timing.rollout + timing.update).max(1e-12);
+    let phases = &timing.phases;
+    let update_total = phases.total().max(1e-12);
+    for (name, value) in [
+        ("perf/env_step_share", timing.env_step / total),
+        (
+            "perf/rollout_other_share",
+            (timing.rollout - timing.env_step) / total,
+        ),
+        ("perf/update_share", timing.update / total),
+        ("perf/update_seconds", timing.update),
+        ("perf/update_forward_share", phases.forward / update_total),
+        ("perf/update_backward_share", phases.backward / update_total),
+        (
+            "perf/update_optimiser_share",
+            phases.optimiser / update_total,
+        ),
+        ("perf/update_batch_share", phases.batch / update_total),
+    ] {
+        writer.add_scalar(name, value as f32, step);
+    }
 }

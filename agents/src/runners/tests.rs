@@ -168,3 +168,21 @@ fn short_cartpole_training_beats_random_play() {
         eval.mean_return
     );
 }
+
+#[test]
+fn update_timing_splits_rollout_environment_and_update_phases() {
+    let mut t = trainer(CARTPOLE_TEST);
+    t.run_update().unwrap();
+    let timing = t.timing;
+    assert!(timing.rollout > 0.0 && timing.update > 0.0, "{timing:?}");
+    assert!(
+        timing.env_step > 0.0 && timing.env_step < timing.rollout,
+        "{timing:?}"
+    );
+    let phases = timing.phases;
+    assert!(
+        phases.forward > 0.0 && phases.backward > 0.0 && phases.optimiser > 0.0,
+        "{phases:?}"
+    );
+    assert!(phases.total() <= timing.update, "{timing:?}");
+}
