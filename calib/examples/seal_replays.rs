@@ -109,7 +109,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!("{id} | {} | {}", peaks.join(" "), events.join("; "));
     }
     for e in sim.health_events() {
-        println!("health: {} {:?} at {:.3} s", ids[e.env], e.reason, e.time - rest);
+        println!(
+            "health: {} {:?} at {:.3} s",
+            ids[e.env],
+            e.reason,
+            e.time - rest
+        );
     }
     Ok(())
 }
