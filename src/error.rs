@@ -28,3 +28,64 @@ pub fn exit_code(err: &anyhow::Error) -> i32 {
         1
     }
 }
+
+/// An error while writing outputs: the user's (exit 2) when it comes from the file system (a
+/// folder that is read-only or full), a fault otherwise.
+pub fn output_error(err: anyhow::Error) -> anyhow::Error {
+    let from_file_system = err.chain().any(|cause| {
+        cause.is::<std::io::Error>()
+            || matches!(
+                cause.downcast_ref::<crate::render::RenderError>(),
+                Some(crate::render::RenderError::Write { .. })
+            )
+    });
+    if from_file_system {
+        input_error(message(&err))
+    } else {
+        err
+    }
+}
+
+/// The error and its causes joined by `: `, leaving out a cause whose text the message already
+/// holds (errors that print their source, like `path: os error`, would otherwise repeat it).
+pub fn message(err: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in err.chain() {
+        let text = cause.to_string();
+        if message.contains(&text) {
+            continue;
+        }
+        if !message.is_empty() {
+            message.push_str(": ");
+        }
+        message.push_str(&text);
+    }
+    message
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("{path}: {source}")]
+    struct PathError {
+        path: String,
+        source: std::io::Error,
+    }
+
+    #[test]
+    fn os_errors_are_not_repeated_and_input_errors_exit_2() {
+        let io = std::io::Error::from_raw_os_error(28);
+        let err = anyhow::Error::new(PathError {
+            path: "runs/x/events".into(),
+            source: io,
+        })
+        .context("training runs/x");
+        let text = message(&err);
+        assert_eq!(text.matches("os error 28").count(), 1, "{text}");
+        assert!(text.starts_with("training runs/x: runs/x/events: "), "{text}");
+        assert_eq!(exit_code(&err), 1);
+        assert_eq!(exit_code(&input_error("bad").context("while reading")), 2);
+    }
+}

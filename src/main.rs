@@ -47,7 +47,7 @@ fn main() {
         Command::Bench(command) => cmd::bench::run(command),
     };
     if let Err(err) = result {
-        eprintln!("error: {err:#}");
+        eprintln!("error: {}", error::message(&err));
         std::process::exit(error::exit_code(&err));
     }
 }

@@ -139,6 +139,20 @@ fn train_eval_and_resume() {
     ));
     assert!(out.contains("4 / 4 updates"), "{out}");
     assert_eq!(eval_json(dir.path(), "runs/split"), summary);
+    // TensorBoard sees every update once, in order, from the one event file of the run.
+    let events: Vec<_> = std::fs::read_dir(dir.path().join("runs/split"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().contains("tfevents"))
+        .collect();
+    assert_eq!(events.len(), 1, "{events:?}");
+    let scalars = rlpkg_agents::runners::read_scalars(&events[0]).unwrap();
+    let steps: Vec<i64> = scalars
+        .iter()
+        .filter(|e| e.tag == "losses/policy_loss")
+        .map(|e| e.step)
+        .collect();
+    assert_eq!(steps, [256, 512, 768, 1024]);
 
     // The same name again is refused (input error).
     let again = rlpkg(&["train", "tiny.toml", "--quiet"], dir.path());

@@ -142,7 +142,14 @@ pub struct NormalizationConfig {
 impl TrainConfig {
     /// Reads and validates a configuration file; returns it with its text (copied into runs).
     pub fn load(path: &Path) -> Result<(Self, String), AgentError> {
-        let text = std::fs::read_to_string(path).map_err(|e| AgentError::io(path, e))?;
+        let bytes = std::fs::read(path).map_err(|e| AgentError::io(path, e))?;
+        let text = String::from_utf8(bytes).map_err(|e| AgentError::ConfigParse {
+            path: path.into(),
+            message: format!(
+                "not UTF-8 text (byte {}); expected a TOML configuration",
+                e.utf8_error().valid_up_to()
+            ),
+        })?;
         let config = Self::parse(&text, path)?;
         Ok((config, text))
     }
@@ -165,6 +172,46 @@ impl TrainConfig {
     /// Number of updates the run performs.
     pub fn num_updates(&self) -> usize {
         (self.run.total_steps / self.batch_size() as u64) as usize
+    }
+
+    /// Bytes training would allocate, by part, for an environment with `obs_dim` observations,
+    /// `action_dim` action values and `actor_out` actor outputs (logits or means).
+    pub fn memory_estimate(
+        &self,
+        obs_dim: usize,
+        action_dim: usize,
+        actor_out: usize,
+    ) -> TrainingMemory {
+        const F32: f64 = 4.0;
+        let (policy, ppo) = (&self.policy, &self.ppo);
+        let transitions = self.run.num_envs as f64 * ppo.rollout_steps as f64;
+        // Storage: observations, actions and six per-step values, plus the batch tensors of the update.
+        let rollout = 2.0 * transitions * (obs_dim + action_dim + 6) as f64 * F32;
+        let parameters = |hidden: &[usize], out: usize| {
+            let mut widths = vec![obs_dim];
+            widths.extend_from_slice(hidden);
+            widths.push(out);
+            widths
+                .windows(2)
+                .map(|w| (w[0] as f64 + 1.0) * w[1] as f64)
+                .sum::<f64>()
+        };
+        // Weights, the rollout copy, gradients, two Adam moments and autodiff temporaries.
+        let actor = 6.0 * parameters(&policy.actor_hidden, actor_out) * F32;
+        let critic = 6.0 * parameters(&policy.critic_hidden, 1) * F32;
+        // Values, pre-activations and gradients of every layer for one minibatch.
+        let minibatch = transitions / ppo.minibatches.max(1) as f64;
+        let widths: usize = policy.actor_hidden.iter().sum::<usize>()
+            + policy.critic_hidden.iter().sum::<usize>()
+            + obs_dim
+            + actor_out;
+        let activations = 4.0 * minibatch * widths as f64 * F32;
+        TrainingMemory {
+            rollout,
+            actor,
+            critic,
+            activations,
+        }
     }
 
     /// Checks every range; the first violation is reported.
@@ -262,8 +309,130 @@ impl TrainConfig {
                 );
             }
         }
-        Ok(())
+        self.check_memory(path)
     }
+
+    /// Compares [`TrainConfig::memory_estimate`] with the memory of the machine and names the
+    /// part that does not fit.
+    fn check_memory(&self, path: &Path) -> Result<(), AgentError> {
+        let spec = rlpkg_env::make(&self.run.env, 1)?.spec().clone();
+        let actor_out = match spec.action.kind {
+            rlpkg_env::SpaceKind::Discrete { n } => n,
+            rlpkg_env::SpaceKind::Continuous => spec.action.dim(),
+        };
+        let memory = self.memory_estimate(spec.observation.dim(), spec.action.dim(), actor_out);
+        let budget = memory_budget_bytes() as f64;
+        let total = memory.total();
+        if total <= budget {
+            return Ok(());
+        }
+        let (run, ppo, policy) = (&self.run, &self.ppo, &self.policy);
+        let parts = [
+            (
+                memory.rollout,
+                "run.num_envs x ppo.rollout_steps",
+                format!("{} x {}", run.num_envs, ppo.rollout_steps),
+                "rollout storage",
+            ),
+            (
+                memory.actor,
+                "policy.actor_hidden",
+                format!("{:?}", policy.actor_hidden),
+                "actor weights, gradients and Adam moments",
+            ),
+            (
+                memory.critic,
+                "policy.critic_hidden",
+                format!("{:?}", policy.critic_hidden),
+                "critic weights, gradients and Adam moments",
+            ),
+            (
+                memory.activations,
+                "ppo.minibatches",
+                ppo.minibatches.to_string(),
+                "activations of one minibatch (more minibatches make it smaller)",
+            ),
+        ];
+        let (bytes, key, value, what) = parts
+            .into_iter()
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+            .expect("four parts");
+        Err(AgentError::ConfigValue {
+            path: path.into(),
+            key: key.into(),
+            value,
+            expected: format!(
+                "sizes that fit in memory: training would need about {} ({} for the {what}), \
+                 more than the {} of this machine",
+                format_bytes(total),
+                format_bytes(bytes),
+                format_bytes(budget)
+            ),
+        })
+    }
+}
+
+/// Bytes training would allocate, by part (see [`TrainConfig::memory_estimate`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrainingMemory {
+    /// Rollout storage and the batch tensors built from it.
+    pub rollout: f64,
+    /// Actor weights, gradients and Adam moments.
+    pub actor: f64,
+    /// Critic weights, gradients and Adam moments.
+    pub critic: f64,
+    /// Activations and their gradients for one minibatch.
+    pub activations: f64,
+}
+
+impl TrainingMemory {
+    /// All parts together.
+    pub fn total(&self) -> f64 {
+        self.rollout + self.actor + self.critic + self.activations
+    }
+}
+
+/// Bytes a command may plan to allocate: the machine's physical memory, or the container's
+/// (cgroup) limit when that is lower, as `sysinfo` reads them; 16 GiB when neither can be read.
+pub fn memory_budget_bytes() -> u64 {
+    use sysinfo::{MemoryRefreshKind, RefreshKind, System};
+    let system =
+        System::new_with_specifics(RefreshKind::nothing().with_memory(MemoryRefreshKind::everything()));
+    let total = system.total_memory();
+    let limit = system
+        .cgroup_limits()
+        .map_or(total, |c| c.total_memory.min(total));
+    if limit == 0 {
+        16 << 30
+    } else {
+        limit
+    }
+}
+
+/// `bytes` with a binary unit, e.g. `16.0 TiB`.
+pub fn format_bytes(bytes: f64) -> String {
+    let units = ["B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    let mut value = bytes;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < units.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    format!("{value:.1} {}", units[unit])
+}
+
+/// An error when `bytes` exceed [`memory_budget_bytes`]: `what` (an option or key, with its value)
+/// would need about `bytes`.
+pub fn check_memory(what: &str, bytes: f64) -> Result<(), AgentError> {
+    let budget = memory_budget_bytes() as f64;
+    if bytes <= budget {
+        return Ok(());
+    }
+    Err(AgentError::Memory {
+        what: what.into(),
+        needed: format_bytes(bytes),
+        available: format_bytes(budget),
+    })
 }
 
 /// FNV-1a hash of the configuration text, as 16 hex digits (stored in checkpoints and exports).
@@ -388,6 +557,51 @@ epsilon = 1e-8
                 "{message}"
             );
         }
+    }
+
+    #[test]
+    fn sizes_that_do_not_fit_in_memory_name_the_key_and_the_memory() {
+        let cases = [
+            (
+                "num_envs = 4",
+                "num_envs = 1048576",
+                "rollout_steps = 64",
+                "rollout_steps = 1048576",
+                "run.num_envs x ppo.rollout_steps",
+            ),
+            (
+                "actor_hidden = [32, 32]",
+                "actor_hidden = [65536, 65536]",
+                "",
+                "",
+                "policy.actor_hidden",
+            ),
+        ];
+        for (from, to, from2, to2, key) in cases {
+            let mut text = CARTPOLE_TEST.replace(from, to);
+            if !from2.is_empty() {
+                text = text
+                    .replace(from2, to2)
+                    .replace("total_steps = 2048", "total_steps = 1099511627776");
+            }
+            let err = parse(&text).unwrap_err().to_string();
+            assert!(err.contains(key) && err.contains("would need about"), "{err}");
+            assert!(err.contains("iB") && err.contains("of this machine"), "{err}");
+        }
+        let config = parse(CARTPOLE_TEST).unwrap();
+        let memory = config.memory_estimate(4, 1, 2);
+        // 256 transitions x (4 + 1 + 6) floats, twice.
+        assert_eq!(memory.rollout, 2.0 * 256.0 * 11.0 * 4.0);
+        assert!(memory.total() < 10e6);
+    }
+
+    #[test]
+    fn bytes_are_formatted_with_binary_units() {
+        assert_eq!(format_bytes(512.0), "512.0 B");
+        assert_eq!(format_bytes(1.5 * 1024.0 * 1024.0), "1.5 MiB");
+        assert_eq!(format_bytes(16.0 * 1024f64.powi(4)), "16.0 TiB");
+        assert!(check_memory("--x 1", 1e30).unwrap_err().to_string().contains("--x 1"));
+        assert!(check_memory("--x 1", 1.0).is_ok());
     }
 
     #[test]

@@ -41,19 +41,33 @@ pub enum AgentError {
         /// What is wrong.
         reason: String,
     },
+    /// A size from the input would need more memory than the machine has.
+    #[error("{what}: would need about {needed} of memory, more than the {available} of this machine")]
+    Memory {
+        /// The option or key and its value, e.g. `--episodes 1000000000`.
+        what: String,
+        /// Estimated need, formatted.
+        needed: String,
+        /// The memory available, formatted.
+        available: String,
+    },
     /// The environment rejected a call.
     #[error("environment: {0}")]
     Env(#[from] rlpkg_env::EnvError),
 }
 
 impl AgentError {
-    /// Whether the error comes from what the user gave (config, run folder) rather than a fault.
+    /// Whether the error comes from what the user gave (config, run folder, output folder, disk
+    /// space) rather than a fault of the program. Every file this crate touches is one the user
+    /// named or a file inside a folder the user named, so I/O errors count as the user's.
     pub fn is_input_error(&self) -> bool {
         matches!(
             self,
             AgentError::ConfigParse { .. }
                 | AgentError::ConfigValue { .. }
                 | AgentError::Checkpoint { .. }
+                | AgentError::Io { .. }
+                | AgentError::Memory { .. }
                 | AgentError::Env(_)
         )
     }

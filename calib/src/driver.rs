@@ -134,8 +134,17 @@ pub fn run(
         message: e.to_string(),
     })?;
     let names = plan.space.names();
-    let (log, previous) =
-        EvaluationLog::open(&plan.out_dir.join("evaluations.csv"), &names, &METRIC_NAMES)?;
+    let bounds: Vec<(f64, f64)> = plan
+        .space
+        .specs()
+        .iter()
+        .map(|s| (s.lower, s.upper))
+        .collect();
+    let log_path = plan.out_dir.join("evaluations.csv");
+    let (log, previous) = EvaluationLog::open(&log_path, &names, &METRIC_NAMES, &bounds)?;
+    for row in &previous {
+        check_objective(&log_path, row)?;
+    }
     let mut bo = BayesOpt::new(plan.space.clone(), plan.settings.clone())
         .with_seed_points(plan.seed_points.clone());
     let mut rows = Vec::with_capacity(previous.len());
@@ -193,6 +202,29 @@ pub fn run(
         batch += 1;
     }
     best_params(&names, &rows).ok_or(DriverError::Bo(BoError::NoFiniteObservation))
+}
+
+/// A logged row's objective must be the one [`objective_value`] gives for its loss: anything else
+/// was not written by this driver and would feed the optimiser a wrong observation.
+fn check_objective(path: &Path, row: &LoggedEvaluation) -> Result<(), DriverError> {
+    let expected = objective_value(row.metrics[0]);
+    let agrees = if expected.is_nan() {
+        row.objective.is_nan()
+    } else {
+        (row.objective - expected).abs() <= 1e-12 * expected.abs().max(1.0)
+    };
+    if agrees {
+        return Ok(());
+    }
+    Err(DriverError::Log(LogError::Inconsistent {
+        path: path.to_path_buf(),
+        batch: row.batch,
+        candidate: row.candidate,
+        message: format!(
+            "`objective` = {} but ln(`loss`) = {expected}; this log was not written by `rlpkg calibrate`",
+            row.objective
+        ),
+    }))
 }
 
 /// What the optimiser models: `ln(loss)`, NaN for a failed or non-positive loss.
@@ -372,6 +404,27 @@ mod tests {
         assert_eq!(
             std::fs::read_to_string(split_dir.join("evaluations.csv")).unwrap(),
             std::fs::read_to_string(full_dir.join("evaluations.csv")).unwrap()
+        );
+    }
+
+    #[test]
+    fn resume_rejects_an_edited_objective() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut bowl = Bowl { calls: 0 };
+        run(&plan(dir.path(), 1), &mut bowl, |_| {}).unwrap();
+        let path = dir.path().join("evaluations.csv");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+        let mut cells: Vec<String> = lines[2].split(',').map(str::to_string).collect();
+        cells[4] = "-100".into();
+        lines[2] = cells.join(",");
+        std::fs::write(&path, lines.join("\n") + "\n").unwrap();
+        let err = run(&plan(dir.path(), 2), &mut bowl, |_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("batch 0 candidate 1") && err.contains("`objective` = -100"),
+            "{err}"
         );
     }
 

@@ -30,6 +30,18 @@ pub enum LogError {
         /// Header expected.
         expected: String,
     },
+    /// A row disagrees with how its values are computed (e.g. an edited objective).
+    #[error("{path}: batch {batch} candidate {candidate}: {message}")]
+    Inconsistent {
+        /// The log file.
+        path: PathBuf,
+        /// Batch of the row.
+        batch: usize,
+        /// Candidate of the row.
+        candidate: usize,
+        /// What disagrees.
+        message: String,
+    },
     /// A row is malformed.
     #[error("{path}, line {line}: {message}")]
     Row {
@@ -65,11 +77,15 @@ pub struct EvaluationLog {
 }
 
 impl EvaluationLog {
-    /// Opens (or creates with its header) the log at `path` and returns it with the rows already in it.
+    /// Opens (or creates with its header) the log at `path` and returns it with the rows already in
+    /// it. Rows the log could not have written are errors: a parameter outside its `bounds` (one
+    /// `(lower, upper)` per parameter), or a row out of sequence (every batch numbers its candidates
+    /// 0, 1, ... and follows the previous batch, so a duplicated row is out of sequence too).
     pub fn open(
         path: &Path,
         param_names: &[&str],
         metric_names: &[&str],
+        bounds: &[(f64, f64)],
     ) -> Result<(Self, Vec<LoggedEvaluation>), LogError> {
         let mut header: Vec<String> = vec!["batch".into(), "candidate".into()];
         header.extend(param_names.iter().map(|s| s.to_string()));
@@ -80,7 +96,7 @@ impl EvaluationLog {
             header,
         };
         let rows = if path.exists() {
-            log.read(param_names.len(), metric_names.len())?
+            log.read(param_names.len(), metric_names.len(), bounds)?
         } else {
             log.append_text(&format!("{}\n", log.header.join(",")))?;
             Vec::new()
@@ -100,7 +116,12 @@ impl EvaluationLog {
         }
     }
 
-    fn read(&self, n_params: usize, n_metrics: usize) -> Result<Vec<LoggedEvaluation>, LogError> {
+    fn read(
+        &self,
+        n_params: usize,
+        n_metrics: usize,
+        bounds: &[(f64, f64)],
+    ) -> Result<Vec<LoggedEvaluation>, LogError> {
         let text = std::fs::read_to_string(&self.path).map_err(|e| self.io(e))?;
         let mut lines = text.lines();
         let found = lines.next().unwrap_or("");
@@ -136,13 +157,49 @@ impl EvaluationLog {
             };
             let index = |col: usize| cells[col].trim().parse::<usize>().map_err(|_| bad(col));
             let number = |col: usize| cells[col].trim().parse::<f64>().map_err(|_| bad(col));
-            let params = (2..2 + n_params).map(number).collect::<Result<_, _>>()?;
+            let params: Vec<f64> = (2..2 + n_params).map(number).collect::<Result<_, _>>()?;
             let metrics = (3 + n_params..3 + n_params + n_metrics)
                 .map(number)
                 .collect::<Result<_, _>>()?;
+            let row_error = |message: String| LogError::Row {
+                path: self.path.clone(),
+                line: line_no,
+                message,
+            };
+            for (col, (&value, &(lower, upper))) in params.iter().zip(bounds).enumerate() {
+                // Values come from the unit cube; allow the rounding of the log-scale map.
+                let slack = 1e-9 * upper.abs().max(lower.abs());
+                if !(value >= lower - slack && value <= upper + slack) {
+                    return Err(row_error(format!(
+                        "column `{}` = {value} is outside its bounds [{lower}, {upper}]; \
+                         this log was not written with these bounds",
+                        self.header[2 + col]
+                    )));
+                }
+            }
+            let (batch, candidate) = (index(0)?, index(1)?);
+            let expected = match rows.last() {
+                None => vec![(0, 0)],
+                Some(LoggedEvaluation {
+                    batch: b,
+                    candidate: c,
+                    ..
+                }) => vec![(*b, c + 1), (b + 1, 0)],
+            };
+            if !expected.contains(&(batch, candidate)) {
+                let wanted: Vec<String> = expected
+                    .iter()
+                    .map(|(b, c)| format!("batch {b} candidate {c}"))
+                    .collect();
+                return Err(row_error(format!(
+                    "batch {batch} candidate {candidate} is out of sequence (duplicated or \
+                     missing rows); expected {}",
+                    wanted.join(" or ")
+                )));
+            }
             rows.push(LoggedEvaluation {
-                batch: index(0)?,
-                candidate: index(1)?,
+                batch,
+                candidate,
                 params,
                 objective: number(2 + n_params)?,
                 metrics,
@@ -181,6 +238,8 @@ impl EvaluationLog {
 mod tests {
     use super::*;
 
+    const WIDE: [(f64, f64); 2] = [(0.0, 1e6), (0.0, 1.0)];
+
     fn row(batch: usize, candidate: usize, objective: f64) -> LoggedEvaluation {
         LoggedEvaluation {
             batch,
@@ -196,12 +255,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("evaluations.csv");
         let (log, rows) =
-            EvaluationLog::open(&path, &["k_tri_e", "mu_con"], &["cd", "mse"]).unwrap();
+            EvaluationLog::open(&path, &["k_tri_e", "mu_con"], &["cd", "mse"], &WIDE).unwrap();
         assert!(rows.is_empty());
         log.append(&[row(0, 0, -3.25), row(0, 1, f64::INFINITY)])
             .unwrap();
         log.append(&[row(1, 0, 1e-17)]).unwrap();
-        let (_, back) = EvaluationLog::open(&path, &["k_tri_e", "mu_con"], &["cd", "mse"]).unwrap();
+        let (_, back) = EvaluationLog::open(&path, &["k_tri_e", "mu_con"], &["cd", "mse"], &WIDE).unwrap();
         assert_eq!(back.len(), 3);
         assert_eq!(back[0].params, row(0, 0, 0.0).params);
         assert_eq!(back[1].objective, f64::INFINITY);
@@ -214,8 +273,8 @@ mod tests {
     fn rejects_another_parameter_set_and_bad_rows() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("evaluations.csv");
-        EvaluationLog::open(&path, &["a"], &[]).unwrap();
-        let err = EvaluationLog::open(&path, &["b"], &[]).unwrap_err();
+        EvaluationLog::open(&path, &["a"], &[], &WIDE).unwrap();
+        let err = EvaluationLog::open(&path, &["b"], &[], &WIDE).unwrap_err();
         assert!(matches!(err, LogError::Header { .. }), "{err}");
 
         std::fs::write(
@@ -223,8 +282,32 @@ mod tests {
             "batch,candidate,a,objective\n0,0,1.0,2.0\n0,1,x,2.0\n",
         )
         .unwrap();
-        let err = EvaluationLog::open(&path, &["a"], &[]).unwrap_err();
+        let err = EvaluationLog::open(&path, &["a"], &[], &WIDE).unwrap_err();
         let msg = err.to_string();
         assert!(msg.contains("line 3") && msg.contains("`a`"), "{msg}");
+    }
+
+    #[test]
+    fn rejects_rows_outside_the_bounds_and_out_of_sequence() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("evaluations.csv");
+        let header = "batch,candidate,a,objective\n";
+        let cases = [
+            ("0,0,0.5,1\n0,1,2.5,1\n", "line 3", "outside its bounds [0, 1]"),
+            ("0,0,0.5,1\n0,0,0.5,1\n", "line 3", "batch 0 candidate 0 is out of sequence"),
+            ("0,0,0.5,1\n1,0,0.5,1\n1,0,0.5,1\n", "line 4", "out of sequence"),
+            ("0,0,0.5,1\n2,0,0.5,1\n", "line 3", "expected batch 0 candidate 1 or batch 1"),
+            ("1,0,0.5,1\n", "line 2", "expected batch 0 candidate 0"),
+        ];
+        for (rows, line, message) in cases {
+            std::fs::write(&path, format!("{header}{rows}")).unwrap();
+            let err = EvaluationLog::open(&path, &["a"], &[], &[(0.0, 1.0)])
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(line) && err.contains(message), "{err}");
+        }
+        std::fs::write(&path, format!("{header}0,0,1.0000000000000002,1\n0,1,0,1\n1,0,1,1\n")).unwrap();
+        let (_, rows) = EvaluationLog::open(&path, &["a"], &[], &[(0.0, 1.0)]).unwrap();
+        assert_eq!(rows.len(), 3, "rounding at a bound and a new batch are accepted");
     }
 }

@@ -35,6 +35,9 @@ pub struct SimBenchArgs {
     json: bool,
 }
 
+/// Upper bound of `--seconds` (a measurement longer than 10 minutes adds nothing).
+const MAX_SECONDS: f64 = 600.0;
+
 fn parse_list<T>(
     option: &str,
     text: &str,
@@ -62,11 +65,32 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
             args.seconds
         )));
     }
+    if args.seconds > MAX_SECONDS {
+        return Err(input_error(format!(
+            "--seconds {}: expected at most {MAX_SECONDS} s per measurement",
+            args.seconds
+        )));
+    }
     let scene = match args.scene.as_str() {
         "reference" | "physical" => rlpkg_sim::SceneConfig::preset(&args.scene),
         path => rlpkg_sim::SceneConfig::load(std::path::Path::new(path)),
     }
     .map_err(input_error)?;
+    for grid in &grids {
+        // One environment's simulator, measured, scales the memory of the largest batch.
+        let one = rlpkg_sim::bench::bench_simulator(&scene, *grid, 1)
+            .map_err(|err| input_error(format!("--grid {}x{}: {err}", grid[0], grid[1])))?
+            .state_bytes();
+        for &n in &envs {
+            // Batches are stored in blocks of 8 environments (a lone environment in a 1-lane block).
+            let bytes = (n as f64 / 8.0).ceil() * 8.0 * one as f64;
+            rlpkg_agents::config::check_memory(
+                &format!("--grid {}x{} --envs {n}", grid[0], grid[1]),
+                bytes,
+            )
+            .map_err(input_error)?;
+        }
+    }
     let mut rows = Vec::new();
     for grid in &grids {
         for &n in &envs {

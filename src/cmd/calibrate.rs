@@ -51,6 +51,13 @@ pub struct CalibrateArgs {
 pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     let mut config = CalibrateConfig::load(&args.config).map_err(input_error)?;
     apply_overrides(&mut config, &args)?;
+    if config.out_dir.exists() && !config.out_dir.is_dir() {
+        return Err(input_error(format!(
+            "{}: is a file; expected a folder for the calibration's files (`out_dir` of {} or --out)",
+            config.out_dir.display(),
+            args.config.display()
+        )));
+    }
     let dataset = Dataset::open(&config.data).map_err(input_error)?;
     let ids = match &config.trajectories {
         Some(ids) => ids.clone(),
@@ -116,7 +123,9 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         ] {
             let path = out_dir.join(file);
             if path.exists() {
-                std::fs::remove_file(&path)?;
+                std::fs::remove_file(&path).map_err(|err| {
+                    input_error(format!("{}: cannot remove (--fresh): {err}", path.display()))
+                })?;
             }
         }
     }
@@ -154,10 +163,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             report.evaluations
         ));
     })
-    .map_err(|e| match e {
-        driver::DriverError::Log(_) => input_error(e),
-        other => anyhow::Error::new(other),
-    })?;
+    .map_err(driver_error)?;
     bar.finish_and_clear();
     let wall = started.elapsed().as_secs_f64();
 
@@ -170,9 +176,9 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         &args.config,
     )?;
     let calibrated_path = out_dir.join("calibrated.toml");
-    driver::write_atomically(&calibrated_path, text.as_bytes())?;
+    driver::write_atomically(&calibrated_path, text.as_bytes()).map_err(driver_error)?;
     if let Some(path) = &args.write_params {
-        driver::write_atomically(path, text.as_bytes())?;
+        driver::write_atomically(path, text.as_bytes()).map_err(driver_error)?;
     }
     print_summary(
         &best,
@@ -182,6 +188,15 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         args.write_params.as_deref(),
     );
     Ok(())
+}
+
+/// The evaluation log and the output files are the user's (exit 2: malformed log, folder that is
+/// a file, read-only or full); a failing optimiser or objective is not.
+fn driver_error(err: driver::DriverError) -> anyhow::Error {
+    match err {
+        driver::DriverError::Log(_) | driver::DriverError::Write { .. } => input_error(err),
+        other => anyhow::Error::new(other),
+    }
 }
 
 /// Applies the command-line overrides to the configuration, with range checks.

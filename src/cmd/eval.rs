@@ -9,48 +9,54 @@ use serde::Serialize;
 
 use crate::error::input_error;
 
+/// Options of `--params` (simulator parameters against recordings) and of a policy (run folder or
+/// `--policy`) exclude each other; clap rejects combinations that would silently ignore one.
 #[derive(Args)]
 pub struct EvalArgs {
     /// Run folder of a trained policy (runs/<name>).
+    #[arg(conflicts_with_all = ["policy", "params"])]
     pub run: Option<PathBuf>,
     /// Evaluate this exported ONNX policy (through tract) instead of the run's burn checkpoint.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "params")]
     pub policy: Option<PathBuf>,
-    /// Number of deterministic evaluation episodes.
-    #[arg(long, default_value_t = 100)]
-    pub episodes: usize,
+    /// Number of deterministic evaluation episodes (one environment copy each).
+    #[arg(long, default_value_t = 100, conflicts_with = "params",
+          value_parser = clap::value_parser!(u64).range(1..))]
+    pub episodes: u64,
     /// Seed for the evaluation environments.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, conflicts_with = "params")]
     pub seed: u64,
     /// Simulator parameters (TOML) to evaluate against recorded trajectories.
     #[arg(long)]
     pub params: Option<PathBuf>,
-    /// Which trajectories of the dataset to evaluate on.
-    #[arg(long, default_value = "test")]
+    /// Which trajectories of the dataset to evaluate on (with --params).
+    #[arg(long, default_value = "test", requires = "params")]
     pub split: String,
-    /// Dataset folder (manifest.toml + one folder per trajectory).
-    #[arg(long, default_value = "data/deformable-sim-real")]
+    /// Dataset folder (manifest.toml + one folder per trajectory; with --params).
+    #[arg(long, default_value = "data/deformable-sim-real", requires = "params")]
     pub data: PathBuf,
-    /// Also run the grid-size sweep (the paper's Table 2).
-    #[arg(long)]
+    /// Also run the grid-size sweep (the paper's Table 2; with --params).
+    #[arg(long, requires = "params")]
     pub sweep_grid: bool,
-    /// Sensitivity: scale every parameter by these percentages, e.g. 10,20,30.
-    #[arg(long, value_delimiter = ',')]
+    /// Sensitivity: scale every parameter by these percentages, e.g. 10,20,30 (with --params).
+    #[arg(long, value_delimiter = ',', requires = "params")]
     pub perturb: Vec<f64>,
-    /// Where to write pictures and the JSON summary.
-    #[arg(long)]
+    /// Where to write pictures and the JSON summary (with --params).
+    #[arg(long, requires = "params")]
     pub out: Option<PathBuf>,
     /// Print a JSON summary on standard output.
     #[arg(long)]
     pub json: bool,
 }
 
+/// Runs `rlpkg eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if args.params.is_some() {
         return crate::cmd::eval_params::run(&args);
     }
     if let Some(policy) = &args.policy {
-        let summary = crate::cmd::export::eval_onnx_policy(policy, args.episodes, args.seed)?;
+        let episodes = episode_count(args.episodes)?;
+        let summary = crate::cmd::export::eval_onnx_policy(policy, episodes, args.seed)?;
         return print_policy_summary(&summary, args.json, &|s| {
             format!(
                 "{} on {}: {} episodes, return {:.2} +- {:.2} (mean length {:.1})",
@@ -68,10 +74,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             "give a run folder (runs/<name>), --policy <file.onnx> or --params <file.toml>",
         ));
     };
-    if args.episodes == 0 {
-        return Err(input_error("--episodes: expected at least 1"));
-    }
-    let summary = evaluate_run(run, args.episodes, args.seed).map_err(|e| {
+    let episodes = episode_count(args.episodes)?;
+    let summary = evaluate_run(run, episodes, args.seed).map_err(|e| {
         if e.is_input_error() {
             input_error(e)
         } else {
@@ -94,6 +98,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             s.mean_length
         )
     })
+}
+
+/// `--episodes` as a count of environment copies (the memory they need is checked where the
+/// environment is known).
+fn episode_count(episodes: u64) -> anyhow::Result<usize> {
+    usize::try_from(episodes)
+        .map_err(|_| input_error(format!("--episodes {episodes}: too large for this machine")))
 }
 
 /// Prints `summary` as pretty JSON (`--json`) or as one line of text.

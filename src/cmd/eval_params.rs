@@ -80,6 +80,9 @@ struct PerturbRow {
 }
 
 /// Runs `rlpkg eval --params`.
+/// Upper bound of the number of `--perturb` percentages.
+const MAX_PERTURBATIONS: usize = 20;
+
 pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
     let params_path = args
         .params
@@ -96,6 +99,13 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
             )))
         }
     };
+    if args.perturb.len() > MAX_PERTURBATIONS {
+        return Err(input_error(format!(
+            "--perturb: {} percentages; expected at most {MAX_PERTURBATIONS} (each one simulates \
+             every trajectory twice per parameter)",
+            args.perturb.len()
+        )));
+    }
     if let Some(p) = args
         .perturb
         .iter()
@@ -125,7 +135,18 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
             .map_or("params".into(), |s| s.to_string_lossy().into_owned());
         PathBuf::from(format!("runs/eval-{stem}"))
     });
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    if out.exists() && !out.is_dir() {
+        return Err(input_error(format!(
+            "--out {}: is a file; expected a folder for the pictures and summary.json",
+            out.display()
+        )));
+    }
+    std::fs::create_dir_all(&out).map_err(|err| {
+        input_error(format!(
+            "{}: cannot create the output folder: {err}",
+            out.display()
+        ))
+    })?;
 
     let targets = selected
         .iter()
@@ -172,7 +193,9 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
             diverged_at_s: o.diverged.map(|e| e.time),
         })
         .collect();
-    observer.write_pictures(&out, &model, &targets, outcomes)?;
+    observer
+        .write_pictures(&out, &model, &targets, outcomes)
+        .map_err(crate::error::output_error)?;
 
     let sweep_grid = if args.sweep_grid {
         sweep(&scene, &targets, &durations)?
@@ -203,7 +226,8 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
         perturb,
     };
     let json = serde_json::to_string_pretty(&summary)?;
-    rlpkg_mocap::dataset::write_atomic(&out.join("summary.json"), json.as_bytes())?;
+    rlpkg_mocap::dataset::write_atomic(&out.join("summary.json"), json.as_bytes())
+        .map_err(input_error)?;
     if args.json {
         println!("{json}");
     } else {

@@ -11,14 +11,17 @@ use clap::Args;
 use rlpkg_agents::export::check::{check_path, CheckData};
 use rlpkg_agents::export::runtime::{
     compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes,
-    Latency,
+    run_episodes_keeping, Latency,
 };
 use rlpkg_agents::export::{write_onnx, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
-use rlpkg_agents::runners::TrainedPolicy;
+use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
 use rlpkg_agents::{AgentError, Trainer};
 use serde::Serialize;
 
 use crate::error::input_error;
+
+/// Upper bound of `--latency`: each run is timed and kept for the median.
+const MAX_LATENCY_RUNS: u64 = 1_000_000;
 
 #[derive(Args)]
 #[command(
@@ -42,9 +45,10 @@ pub struct ExportArgs {
     /// (`policy.check.json`), for `tests/onnx_check.py` or another runtime.
     #[arg(long)]
     pub check_data: bool,
-    /// Time this many single-observation inferences of the written file in tract.
-    #[arg(long)]
-    pub latency: Option<usize>,
+    /// Time this many single-observation inferences of the written file in tract (at most a
+    /// million: about 10 s at 10 us each).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_LATENCY_RUNS))]
+    pub latency: Option<u64>,
     /// Print a JSON summary on standard output.
     #[arg(long)]
     pub json: bool,
@@ -118,10 +122,19 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
         graph.critic = None;
     }
     let out = args.out.clone().unwrap_or_else(|| run.join("policy.onnx"));
+    let rows = usize::try_from(args.verify)
+        .map_err(|_| input_error(format!("--verify {}: too large", args.verify)))?;
+    let widths: usize = graph.actor.iter().map(|layer| layer.d_out).sum();
+    // The rows go through the reference, tract and burn, and into the check data.
+    rlpkg_agents::config::check_memory(
+        &format!("--verify {rows}"),
+        4.0 * evaluation_memory_bytes(rows, graph.obs_dim(), widths),
+    )
+    .map_err(input_error)?;
     let options = ExportOptions {
-        verify_rows: args.verify as usize,
+        verify_rows: rows,
         check_data: args.check_data,
-        latency_runs: args.latency,
+        latency_runs: args.latency.map(|runs| runs as usize),
     };
     let mut summary = export_policy(&graph, &out, &options)?;
     summary.burn = Some(compare_with_burn(&burn, &graph, &out, options.verify_rows)?);
@@ -344,7 +357,13 @@ pub fn eval_onnx_policy(
             path.display()
         ))
     })?;
-    let stats = run_episodes(&env_id, episodes, seed, |obs, n| policy.act(obs, n)).map_err(
+    // The layer widths of an ONNX file are not read here; 1024 per row stands for the hidden layers.
+    rlpkg_agents::config::check_memory(
+        &format!("--episodes {episodes}"),
+        evaluation_memory_bytes(episodes, policy.obs_dim(), 1024),
+    )
+    .map_err(input_error)?;
+    let stats = run_episodes_keeping(&env_id, episodes, seed, 0, |obs, n| policy.act(obs, n)).map_err(
         |e| match e {
             ExportError::Env(_) | ExportError::ObsShape { .. } => {
                 input_error(format!("{}: {e}", path.display()))

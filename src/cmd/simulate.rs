@@ -100,8 +100,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("runs/simulate-{}", recording.id)));
     let mut replay = Replay::new(&recording, &config, &args)?;
-    std::fs::create_dir_all(out.join("frames"))
-        .with_context(|| format!("cannot create output folder {}", out.display()))?;
+    prepare_output(&out)?;
     println!(
         "simulate {}: {} package + {} cup particles, dt = 1/{} s, {:.2} s rest + {:.3} s replay ({} substeps)",
         recording.id,
@@ -119,7 +118,8 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     write_atomic(
         &out.join("summary.json"),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
-    )?;
+    )
+    .map_err(input_error)?;
     outcome.print(&replay, wall_s, &out);
     if let Some(event) = outcome.health {
         anyhow::bail!(
@@ -130,6 +130,66 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Files written into the output folder besides `frames/`; a temporary one is `.<name>.<suffix>`.
+const OUTPUT_FILES: [&str; 5] = [
+    "markers_sim.csv",
+    "object_sim.csv",
+    "metrics.csv",
+    "summary.json",
+    "replay.gif",
+];
+
+/// Creates `out/frames` and removes temporary files an interrupted earlier run left behind.
+fn prepare_output(out: &Path) -> anyhow::Result<()> {
+    if out.exists() && !out.is_dir() {
+        return Err(input_error(format!(
+            "--out {}: is a file; expected a folder for the replay's files",
+            out.display()
+        )));
+    }
+    let frames = out.join("frames");
+    std::fs::create_dir_all(&frames).map_err(|err| {
+        input_error(format!(
+            "{}: cannot create the output folder: {err}",
+            frames.display()
+        ))
+    })?;
+    let is_output_temporary = |name: &str| {
+        OUTPUT_FILES
+            .iter()
+            .any(|file| name.starts_with(&format!(".{file}.")))
+    };
+    let is_still_temporary = |name: &str| name.starts_with('.') && name.contains(".tmp");
+    for (dir, is_temporary) in [
+        (out, &is_output_temporary as &dyn Fn(&str) -> bool),
+        (frames.as_path(), &is_still_temporary),
+    ] {
+        let entries = std::fs::read_dir(dir)
+            .map_err(|err| input_error(format!("{}: {err}", dir.display())))?;
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if is_temporary(&name) {
+                let path = entry.path();
+                std::fs::remove_file(&path).map_err(|err| {
+                    input_error(format!(
+                        "{}: cannot remove this leftover temporary file: {err}",
+                        path.display()
+                    ))
+                })?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Writing a picture failed: the output folder's fault (exit 2) unless drawing itself failed.
+fn output_error(err: render::RenderError) -> anyhow::Error {
+    match err {
+        render::RenderError::Write { .. } => input_error(err),
+        other => anyhow::Error::new(other),
+    }
 }
 
 fn check_options(args: &SimulateArgs) -> anyhow::Result<()> {
@@ -168,7 +228,13 @@ fn scene_config(args: &SimulateArgs) -> anyhow::Result<(SceneConfig, String)> {
     };
     let grid = match (args.grid, args.between) {
         (Some(grid), _) => Some((grid, "--grid")),
-        (None, Some(p)) => Some(([6 + 5 * p, 7 + 6 * p], "--between")),
+        (None, Some(p)) => {
+            let side = |base: usize, per: usize| p.checked_mul(per)?.checked_add(base);
+            let grid = side(6, 5).zip(side(7, 6)).ok_or_else(|| {
+                input_error(format!("--between {p}: expected a small number of particles"))
+            })?;
+            Some(([grid.0, grid.1], "--between"))
+        }
         (None, None) => None,
     };
     if let Some((grid, option)) = grid {
@@ -306,11 +372,10 @@ impl Replay {
         let mut gif = if args.no_gif {
             None
         } else {
-            Some(GifWriter::create(
-                &out.join("replay.gif"),
-                GIF_SIZE,
-                frame_seconds,
-            )?)
+            Some(
+                GifWriter::create(&out.join("replay.gif"), GIF_SIZE, frame_seconds)
+                    .map_err(output_error)?,
+            )
         };
         let progress = ProgressBar::new(self.total_substeps()).with_style(
             ProgressStyle::with_template("{bar:40} {percent:>3}% substeps, eta {eta}")
@@ -366,18 +431,18 @@ impl Replay {
                     // The index keeps the files in time order when listed by name.
                     let name = format!("{:03}_t{:+.3}s.png", outcome.stills.len(), stop.t);
                     let path = out.join("frames").join(name);
-                    render::write_png(&path, &frame, &png_view)?;
+                    render::write_png(&path, &frame, &png_view).map_err(output_error)?;
                     outcome.stills.push(path);
                 }
                 if let (true, Some(writer)) = (stop.gif, gif.as_mut()) {
-                    writer.add(&frame, &gif_view)?;
+                    writer.add(&frame, &gif_view).map_err(output_error)?;
                 }
             }
         }
         progress.finish_and_clear();
         if let Some(writer) = gif {
             let frames = writer.frames();
-            outcome.gif = Some((writer.finish()?, frames));
+            outcome.gif = Some((writer.finish().map_err(output_error)?, frames));
         }
         outcome.write_csvs(out)?;
         Ok(outcome)
@@ -546,9 +611,13 @@ impl Outcome {
     }
 
     fn write_csvs(&self, out: &Path) -> anyhow::Result<()> {
-        write_atomic(&out.join("markers_sim.csv"), self.markers_csv.as_bytes())?;
-        write_atomic(&out.join("object_sim.csv"), self.object_csv.as_bytes())?;
-        write_atomic(&out.join("metrics.csv"), self.metrics_csv.as_bytes())?;
+        for (name, text) in [
+            ("markers_sim.csv", &self.markers_csv),
+            ("object_sim.csv", &self.object_csv),
+            ("metrics.csv", &self.metrics_csv),
+        ] {
+            write_atomic(&out.join(name), text.as_bytes()).map_err(input_error)?;
+        }
         Ok(())
     }
 

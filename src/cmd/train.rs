@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
+use rlpkg_agents::config::check_memory;
 use rlpkg_agents::{load_policy_graph, AgentError, TrainConfig, Trainer};
 
 use crate::cmd::export::{export_policy, ExportOptions};
@@ -23,7 +24,7 @@ pub struct TrainArgs {
     #[arg(long, value_name = "RUN_DIR")]
     pub resume: Option<PathBuf>,
     /// Run name; the run is written to <OUT_DIR>/<NAME> [default: the config file's stem].
-    #[arg(long)]
+    #[arg(long, value_parser = parse_run_name)]
     pub name: Option<String>,
     /// Folder that holds run folders.
     #[arg(long, default_value = "runs")]
@@ -48,6 +49,7 @@ fn wrap(err: AgentError) -> anyhow::Error {
     }
 }
 
+/// Runs `rlpkg train`.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let (mut trainer, run_dir) = match (&args.resume, &args.config) {
         (Some(run_dir), _) => (Trainer::resume(run_dir).map_err(wrap)?, run_dir.clone()),
@@ -60,6 +62,12 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
                 Some(name) => name.clone(),
                 None => default_name(config_path)?,
             };
+            if args.out_dir.exists() && !args.out_dir.is_dir() {
+                return Err(input_error(format!(
+                    "--out-dir {}: is a file; expected a folder for run folders",
+                    args.out_dir.display()
+                )));
+            }
             let run_dir = args.out_dir.join(name);
             let trainer = Trainer::new(config, text).map_err(wrap)?;
             trainer.create_run_dir(&run_dir).map_err(wrap)?;
@@ -105,12 +113,23 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A run name is one plain folder name, so the run stays inside `--out-dir`.
+fn parse_run_name(name: &str) -> Result<String, String> {
+    let mut parts = Path::new(name).components();
+    match (parts.next(), parts.next()) {
+        (Some(std::path::Component::Normal(part)), None) if part == name => Ok(name.to_string()),
+        _ => Err(format!(
+            "`{name}`: expected a plain folder name (not empty, no `/`, not `.` or `..`), e.g. cartpole-seed2"
+        )),
+    }
+}
+
 /// The config file's stem, e.g. `cartpole` for `configs/cartpole.toml`.
 fn default_name(config_path: &Path) -> anyhow::Result<String> {
     config_path
         .file_stem()
         .and_then(|s| s.to_str())
-        .map(str::to_string)
+        .and_then(|s| parse_run_name(s).ok())
         .ok_or_else(|| {
             input_error(format!(
                 "{}: cannot derive a run name; pass --name",
@@ -128,9 +147,9 @@ pub struct PpoBenchArgs {
     /// Samples per minibatch.
     #[arg(long, default_value_t = 4096)]
     pub minibatch: usize,
-    /// Timed minibatches per backend.
-    #[arg(long, default_value_t = 10)]
-    pub minibatches: usize,
+    /// Timed minibatches per backend (at most 10000).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    pub minibatches: u64,
     /// Observation width.
     #[arg(long, default_value_t = 48)]
     pub obs_dim: usize,
@@ -140,9 +159,9 @@ pub struct PpoBenchArgs {
     /// Hidden widths of actor and critic (comma-separated).
     #[arg(long, default_value = "256,256", value_delimiter = ',')]
     pub hidden: Vec<usize>,
-    /// Lockstep steps of the environment benchmark (0 skips it).
-    #[arg(long, default_value_t = 20000)]
-    pub env_steps: usize,
+    /// Lockstep steps of the environment benchmark (0 skips it; at most 10 million).
+    #[arg(long, default_value_t = 20000, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
+    pub env_steps: u64,
     /// Copies in the environment benchmark.
     #[arg(long, default_value_t = 64)]
     pub num_envs: usize,
@@ -151,21 +170,55 @@ pub struct PpoBenchArgs {
     pub json: bool,
 }
 
+/// Bytes of the PPO benchmark: actor and critic with gradients and Adam moments (x6), and one
+/// minibatch's data and activations with their gradients.
+fn ppo_bench_memory_bytes(args: &PpoBenchArgs) -> f64 {
+    let network = |out: usize| {
+        let mut widths = vec![args.obs_dim];
+        widths.extend_from_slice(&args.hidden);
+        widths.push(out);
+        widths
+            .windows(2)
+            .map(|w| (w[0] as f64 + 1.0) * w[1] as f64)
+            .sum::<f64>()
+    };
+    let parameters = network(args.action_dim) + network(1);
+    let widths = 2 * args.hidden.iter().sum::<usize>() + args.obs_dim + args.action_dim;
+    let per_row = 4 * widths + 2 * (args.obs_dim + args.action_dim + 6);
+    4.0 * (6.0 * parameters + args.minibatch as f64 * per_row as f64)
+}
+
 /// `rlpkg bench ppo`: PPO update throughput (forward + backward + global clip + Adam) per backend,
 /// and CartPole / Pendulum steps per second.
 pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
     use rlpkg_agents::bench::{
         env_throughput, matmul_throughput, ppo_update_throughput, PpoBenchConfig,
     };
-    if args.minibatch == 0 || args.minibatches == 0 || args.obs_dim == 0 || args.action_dim == 0 {
+    if args.minibatch == 0 || args.obs_dim == 0 || args.action_dim == 0 {
         return Err(input_error(
-            "--minibatch, --minibatches, --obs-dim and --action-dim: expected at least 1",
+            "--minibatch, --obs-dim and --action-dim: expected at least 1",
         ));
     }
     if args.hidden.is_empty() || args.hidden.contains(&0) {
         return Err(input_error(
             "--hidden: expected widths of at least 1, e.g. 256,256",
         ));
+    }
+    check_memory(
+        &format!(
+            "--minibatch {} --hidden {:?} --obs-dim {} --action-dim {}",
+            args.minibatch, args.hidden, args.obs_dim, args.action_dim
+        ),
+        ppo_bench_memory_bytes(&args),
+    )
+    .map_err(input_error)?;
+    let (minibatches, env_steps) = (args.minibatches as usize, args.env_steps as usize);
+    if env_steps > 0 {
+        check_memory(
+            &format!("--num-envs {}", args.num_envs),
+            rlpkg_agents::runners::evaluation_memory_bytes(args.num_envs, 4, 0),
+        )
+        .map_err(input_error)?;
     }
     let mut updates = Vec::new();
     let mut matmuls = Vec::new();
@@ -177,7 +230,7 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
             action_dim: args.action_dim,
             hidden: args.hidden.clone(),
             minibatch: args.minibatch,
-            minibatches: args.minibatches,
+            minibatches,
             backend,
         });
         let shares = &result.shares;
@@ -222,9 +275,9 @@ pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
         }
     }
     let mut envs = Vec::new();
-    if args.env_steps > 0 {
+    if env_steps > 0 {
         for id in rlpkg_env::KNOWN_IDS {
-            let result = env_throughput(id, args.num_envs.max(1), args.env_steps)?;
+            let result = env_throughput(id, args.num_envs.max(1), env_steps)?;
             eprintln!(
                 "env {} x{}: {:.3e} steps/s",
                 result.env_id, result.num_envs, result.steps_per_second

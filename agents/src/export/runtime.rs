@@ -404,6 +404,21 @@ pub fn run_episodes<E>(
     env_id: &str,
     episodes: usize,
     seed: u64,
+    act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
+) -> Result<EpisodeStats, E>
+where
+    E: From<rlpkg_env::EnvError>,
+{
+    run_episodes_keeping(env_id, episodes, seed, usize::MAX, act)
+}
+
+/// [`run_episodes`] keeping at most `keep_rows` visited observations (an evaluation of many
+/// episodes needs none, and keeping them all would grow with episodes x length).
+pub fn run_episodes_keeping<E>(
+    env_id: &str,
+    episodes: usize,
+    seed: u64,
+    keep_rows: usize,
     mut act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
 ) -> Result<EpisodeStats, E>
 where
@@ -419,6 +434,9 @@ where
     let mut visited_obs = Vec::new();
     while running.iter().any(|&r| r) {
         for (env_index, _) in running.iter().enumerate().filter(|(_, &r)| r) {
+            if visited_obs.len() / obs_dim.max(1) >= keep_rows {
+                break;
+            }
             visited_obs.extend_from_slice(&buffers.obs[env_index * obs_dim..][..obs_dim]);
         }
         let actions = act(&buffers.obs, episodes)?;

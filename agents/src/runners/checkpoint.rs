@@ -17,6 +17,7 @@ use burn::module::Module;
 use rlpkg_env::EnvState;
 use serde::{Deserialize, Serialize};
 
+use super::tensorboard::EventsPosition;
 use super::Trainer;
 use crate::config::{config_hash, TrainConfig};
 use crate::modules::RunningMeanStd;
@@ -79,6 +80,9 @@ struct TrainerState {
     running_returns: Vec<u64>,
     running_lengths: Vec<usize>,
     recent_returns: Vec<u32>,
+    /// The event file at this checkpoint (absent in checkpoints of older versions).
+    #[serde(default)]
+    events: Option<EventsPosition>,
 }
 
 fn bits(values: &[f64]) -> Vec<u64> {
@@ -104,19 +108,54 @@ fn checkpoint_error(path: &Path, reason: impl Into<String>) -> AgentError {
     }
 }
 
-/// The newest complete checkpoint folder of `run_dir`.
+/// The newest complete checkpoint folder of `run_dir`: the `update_NNNNNN` folder named in
+/// `checkpoints/latest`, which must be a plain name inside `checkpoints/` (never a path to another
+/// run) and hold a checkpoint.
 pub fn latest_checkpoint(run_dir: &Path) -> Result<PathBuf, AgentError> {
-    let latest = run_dir.join(CHECKPOINTS).join(LATEST);
-    let name = std::fs::read_to_string(&latest).map_err(|_| {
-        checkpoint_error(
-            run_dir,
+    let dir = run_dir.join(CHECKPOINTS);
+    let latest = dir.join(LATEST);
+    let name = match std::fs::read(&latest) {
+        Ok(bytes) => String::from_utf8_lossy(&bytes).trim().to_string(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(checkpoint_error(
+                run_dir,
+                format!(
+                    "no checkpoint (expected {}; is this a folder written by `rlpkg train`?)",
+                    latest.display()
+                ),
+            ))
+        }
+        Err(e) => return Err(AgentError::io(&latest, e)),
+    };
+    if update_number(&name).is_none() {
+        return Err(checkpoint_error(
+            &latest,
             format!(
-                "no checkpoint (expected {}; is this a folder written by `rlpkg train`?)",
-                latest.display()
+                "holds `{name}`; expected the name of a checkpoint folder inside {}, e.g. update_000010",
+                dir.display()
             ),
-        )
-    })?;
-    Ok(run_dir.join(CHECKPOINTS).join(name.trim()))
+        ));
+    }
+    let checkpoint = dir.join(&name);
+    if !checkpoint.join(STATE).is_file() {
+        return Err(checkpoint_error(
+            &latest,
+            format!(
+                "names {}, which holds no checkpoint (expected {STATE}, {MODEL} and {OPTIMIZER})",
+                checkpoint.display()
+            ),
+        ));
+    }
+    Ok(checkpoint)
+}
+
+/// The update of a checkpoint folder name `update_NNNNNN` (at least six digits, nothing else).
+fn update_number(name: &str) -> Option<usize> {
+    let digits = name.strip_prefix("update_")?;
+    if digits.len() < 6 || !digits.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    digits.parse().ok()
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same folder.
@@ -199,6 +238,7 @@ impl Trainer {
             running_returns: bits(&self.running_returns),
             running_lengths: self.running_lengths.clone(),
             recent_returns: self.recent_returns.iter().map(|r| r.to_bits()).collect(),
+            events: self.events.clone(),
         }
     }
 
@@ -239,8 +279,49 @@ impl Trainer {
             .clone()
             .load(&optim_path)
             .map_err(|e| checkpoint_error(&optim_path, e.to_string()))?;
+        trainer.check_counters(&state, &checkpoint, &state_path)?;
         trainer.restore_state(state, &state_path)?;
         Ok(trainer)
+    }
+
+    /// The counters of `state` must agree with the configuration and the folder they are in: every
+    /// update adds `num_envs x rollout_steps` steps, a run never goes past its last update, and the
+    /// folder is named after its update.
+    fn check_counters(
+        &self,
+        state: &TrainerState,
+        checkpoint: &Path,
+        path: &Path,
+    ) -> Result<(), AgentError> {
+        let folder = checkpoint
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(update_number);
+        let num_updates = self.config.num_updates();
+        let expected_steps = state.update as u64 * self.config.batch_size() as u64;
+        let problem = if state.update == 0 || state.update > num_updates {
+            Some(format!(
+                "`update` = {}: expected an update in [1, {num_updates}] (the configuration's run length)",
+                state.update
+            ))
+        } else if folder != Some(state.update) {
+            Some(format!(
+                "`update` = {} does not match the checkpoint folder {}",
+                state.update,
+                checkpoint.display()
+            ))
+        } else if state.global_step != expected_steps {
+            Some(format!(
+                "`global_step` = {}: expected update x run.num_envs x ppo.rollout_steps = {expected_steps}",
+                state.global_step
+            ))
+        } else {
+            None
+        };
+        match problem {
+            Some(reason) => Err(checkpoint_error(path, reason)),
+            None => Ok(()),
+        }
     }
 
     fn restore_state(&mut self, state: TrainerState, path: &Path) -> Result<(), AgentError> {
@@ -298,6 +379,7 @@ impl Trainer {
         self.running_returns = floats(&state.running_returns);
         self.running_lengths = state.running_lengths;
         self.recent_returns = floats32(&state.recent_returns).into();
+        self.events = state.events;
         Ok(())
     }
 }

@@ -3,10 +3,14 @@
 mod checkpoint;
 mod on_policy;
 mod policy;
+mod tensorboard;
 
 pub use checkpoint::{latest_checkpoint, CONFIG_FILE};
 pub use on_policy::{TrainSummary, Trainer, UpdateLog, UpdateTiming};
-pub use policy::{evaluate_run, load_policy_graph, EvalSummary, TrainedPolicy};
+pub use policy::{
+    evaluate_run, evaluation_memory_bytes, load_policy_graph, EvalSummary, TrainedPolicy,
+};
+pub use tensorboard::{read_scalars, EventWriter, EventsPosition, ScalarEvent};
 
 #[cfg(test)]
 mod tests;

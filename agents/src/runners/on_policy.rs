@@ -11,8 +11,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rlpkg_env::{EnvSpec, SpaceKind, StepBuffers, VecEnv};
-use tensorboard_rs::summary_writer::SummaryWriter;
 
+use super::tensorboard::{EventWriter, EventsPosition};
 use crate::algorithms::{PhaseTimes, Ppo, UpdateStats};
 use crate::config::{config_hash, ActivationName, TrainConfig, TransformName};
 use crate::export::{ActionTransform, Activation, ObsNormaliser};
@@ -90,6 +90,8 @@ pub struct Trainer {
     pub(super) running_returns: Vec<f64>,
     pub(super) running_lengths: Vec<usize>,
     pub(super) recent_returns: VecDeque<f32>,
+    /// The event file as it stood at the last checkpoint (saved with it, cut back to on resume).
+    pub(super) events: Option<EventsPosition>,
     device: Device,
     /// Where the time of the last update went.
     pub timing: UpdateTiming,
@@ -173,6 +175,7 @@ impl Trainer {
             running_returns: vec![0.0; num_envs],
             running_lengths: vec![0; num_envs],
             recent_returns: VecDeque::new(),
+            events: None,
             env,
             spec,
             buffers,
@@ -389,7 +392,11 @@ impl Trainer {
         let last = stop_after.map_or(num_updates, |s| s.min(num_updates));
         let start = Instant::now();
         let start_step = self.global_step;
-        let mut writer = SummaryWriter::new(run_dir);
+        let mut writer = if self.update == 0 {
+            EventWriter::create(run_dir)?
+        } else {
+            EventWriter::resume(run_dir, self.events.as_ref(), self.global_step + 1)?
+        };
         let total_steps = (num_updates * self.config.batch_size()) as u64;
         let bar = if show_progress {
             ProgressBar::new(total_steps)
@@ -410,6 +417,7 @@ impl Trainer {
                 (self.global_step - start_step) as f64 / start.elapsed().as_secs_f64().max(1e-9);
             write_scalars(&mut writer, &log, sps);
             write_perf_scalars(&mut writer, &self.timing, log.global_step as usize);
+            writer.flush()?;
             bar.set_position(self.global_step);
             bar.set_message(format!(
                 "{sps:.0} SPS | mean return {:.1}",
@@ -427,10 +435,10 @@ impl Trainer {
                 );
             }
             if self.update.is_multiple_of(self.config.run.checkpoint_every) || self.update == last {
+                self.events = Some(writer.position()?);
                 self.save_checkpoint(run_dir)?;
             }
         }
-        writer.flush();
         bar.finish_and_clear();
         Ok(TrainSummary {
             updates: self.update,
@@ -441,7 +449,7 @@ impl Trainer {
     }
 }
 
-fn write_scalars(writer: &mut SummaryWriter, log: &UpdateLog, sps: f64) {
+fn write_scalars(writer: &mut EventWriter, log: &UpdateLog, sps: f64) {
     let step = log.global_step as usize;
     if !log.episode_returns.is_empty() {
         let count = log.episode_returns.len() as f32;
@@ -467,7 +475,7 @@ fn write_scalars(writer: &mut SummaryWriter, log: &UpdateLog, sps: f64) {
 
 /// `perf/`: wall-time shares of one rollout + update (environment steps, the rest of the rollout,
 /// the PPO update, and the update's phases) and the update's seconds.
-fn write_perf_scalars(writer: &mut SummaryWriter, timing: &UpdateTiming, step: usize) {
+fn write_perf_scalars(writer: &mut EventWriter, timing: &UpdateTiming, step: usize) {
     let total = (timing.rollout + timing.update).max(1e-12);
     let phases = &timing.phases;
     let update_total = phases.total().max(1e-12);

@@ -9,7 +9,8 @@ use serde::Serialize;
 
 use super::Trainer;
 use crate::export::graph::argmax;
-use crate::export::runtime::run_episodes;
+use crate::config::check_memory;
+use crate::export::runtime::run_episodes_keeping;
 use crate::export::{ActionHead, ActionTransform, ObsNormaliser, PolicyGraph, PolicyMeta};
 use crate::modules::ActorCritic;
 use crate::AgentError;
@@ -126,12 +127,30 @@ pub struct EvalSummary {
     pub mean_length: f64,
 }
 
+/// Bytes an evaluation of `episodes` environment copies in lockstep needs: per copy, the
+/// environment's buffers and state, and one row of every layer (`layer_widths`, the sum of the
+/// widths after the input) with its normalised input.
+pub fn evaluation_memory_bytes(episodes: usize, obs_dim: usize, layer_widths: usize) -> f64 {
+    let floats_per_copy = 4 * obs_dim + 2 * layer_widths + 16;
+    episodes as f64 * floats_per_copy as f64 * 4.0
+}
+
 /// Runs `episodes` deterministic episodes (one per environment copy, copy `i` seeded `seed + i`)
 /// with the latest checkpoint of `run_dir`.
 pub fn evaluate_run(run_dir: &Path, episodes: usize, seed: u64) -> Result<EvalSummary, AgentError> {
     let trainer = Trainer::resume(run_dir)?;
     let policy = TrainedPolicy::from_trainer(&trainer);
-    let stats = run_episodes::<AgentError>(&policy.spec.id, episodes, seed, |obs, n| {
+    let widths: usize = policy
+        .model
+        .actor_layers()
+        .iter()
+        .map(|layer| layer.d_out)
+        .sum();
+    check_memory(
+        &format!("--episodes {episodes}"),
+        evaluation_memory_bytes(episodes, policy.spec.observation.dim(), widths),
+    )?;
+    let stats = run_episodes_keeping::<AgentError>(&policy.spec.id, episodes, seed, 0, |obs, n| {
         Ok(policy.act(obs, n))
     })?;
     let returns = stats.returns.iter().map(|&r| r as f64);

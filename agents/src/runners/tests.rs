@@ -186,3 +186,43 @@ fn update_timing_splits_rollout_environment_and_update_phases() {
     );
     assert!(phases.total() <= timing.update, "{timing:?}");
 }
+
+/// Event files of a run folder, in name order (TensorBoard's reading order).
+fn event_files(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().contains("tfevents"))
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn resume_after_a_lost_checkpoint_logs_each_update_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut first = trainer(CARTPOLE_TEST);
+    first.create_run_dir(dir.path()).unwrap();
+    first.train(dir.path(), Some(3), false).unwrap();
+    drop(first);
+    // As if killed after update 3 was logged but before its checkpoint was named in `latest`.
+    std::fs::write(dir.path().join("checkpoints/latest"), "update_000002").unwrap();
+    let logged_before = read_scalars(&event_files(dir.path())[0]).unwrap();
+    assert!(logged_before.iter().any(|e| e.step == 768));
+
+    let mut resumed = Trainer::resume(dir.path()).unwrap();
+    assert_eq!(resumed.update, 2);
+    resumed.train(dir.path(), Some(4), false).unwrap();
+    let files = event_files(dir.path());
+    assert_eq!(files.len(), 1, "the resumed run continues the same file");
+    let events = read_scalars(&files[0]).unwrap();
+    let steps: Vec<i64> = events
+        .iter()
+        .filter(|e| e.tag == "losses/value_loss")
+        .map(|e| e.step)
+        .collect();
+    assert_eq!(steps, [256, 512, 768, 1024]);
+    // The records of the first update 3 were cut, not kept beside the new ones.
+    let sps = events.iter().filter(|e| e.tag == "charts/SPS").count();
+    assert_eq!(sps, 4);
+}

@@ -1,0 +1,512 @@
+//! Bad inputs through the binary, one table: configurations, run folders and checkpoints, output
+//! folders and sizes. Each case must exit with code 2, print a message that names the file, key or
+//! option (and line where there is one), never panic, and leave the folder it ran in exactly as it
+//! was (no partial output).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+const TINY_CARTPOLE: &str = r#"
+[run]
+env = "CartPole-v1"
+num_envs = 4
+seed = 3
+total_steps = 1024
+checkpoint_every = 1
+
+[ppo]
+rollout_steps = 64
+epochs = 1
+minibatches = 2
+gamma = 0.99
+gae_lambda = 0.95
+clip_ratio = 0.2
+clip_value_loss = true
+value_coef = 0.5
+entropy_coef = 0.01
+max_grad_norm = 0.5
+learning_rate = 1e-3
+lr_schedule = "linear"
+desired_kl = 0.01
+normalize_advantages = true
+adam_epsilon = 1e-5
+
+[policy]
+actor_hidden = [16, 16]
+critic_hidden = [16, 16]
+activation = "tanh"
+init_log_std = 0.0
+action_transform = "clip"
+
+[normalization]
+observations = true
+rewards = true
+clip_obs = 10.0
+clip_reward = 10.0
+epsilon = 1e-8
+"#;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn trajectory() -> String {
+    repo()
+        .join("data/deformable-sim-real/HHHHH")
+        .display()
+        .to_string()
+}
+
+/// A run folder trained once for every case that needs one (4 updates, no export).
+fn trained_run() -> &'static Path {
+    static RUN: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &RUN.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("tiny.toml"), TINY_CARTPOLE).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+            .args(["train", "tiny.toml", "--quiet", "--no-export"])
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+        let run = dir.path().join("runs/tiny");
+        (dir, run)
+    })
+    .1
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).unwrap();
+        }
+    }
+}
+
+/// Copies the trained run to `dir/run` and returns `"run"`.
+fn run_copy(dir: &Path) -> String {
+    copy_dir(trained_run(), &dir.join("run"));
+    "run".into()
+}
+
+fn write_tiny(dir: &Path) {
+    std::fs::write(dir.join("tiny.toml"), TINY_CARTPOLE).unwrap();
+}
+
+fn tiny_config(dir: &Path, from: &str, to: &str) {
+    assert!(TINY_CARTPOLE.contains(from), "{from}");
+    std::fs::write(dir.join("tiny.toml"), TINY_CARTPOLE.replace(from, to)).unwrap();
+}
+
+fn edit(path: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.contains(from), "{} lacks {from}", path.display());
+    std::fs::write(path, text.replace(from, to)).unwrap();
+}
+
+/// A folder nothing can be written into: a read-only folder, or (when running as root, which
+/// ignores permissions) a folder under /proc.
+fn read_only_folder(dir: &Path) -> String {
+    use std::os::unix::fs::PermissionsExt;
+    let folder = dir.join("read-only");
+    std::fs::create_dir(&folder).unwrap();
+    std::fs::set_permissions(&folder, std::fs::Permissions::from_mode(0o555)).unwrap();
+    if std::fs::write(folder.join("probe"), "").is_ok() {
+        std::fs::remove_file(folder.join("probe")).unwrap();
+        return "/proc/rlpkg-bad-inputs".into();
+    }
+    "read-only".into()
+}
+
+/// Every file under `dir` with its bytes, and every folder.
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Option<Vec<u8>>> {
+    let mut files = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(folder) = stack.pop() {
+        for entry in std::fs::read_dir(&folder).unwrap() {
+            let path = entry.unwrap().path();
+            let key = path.strip_prefix(dir).unwrap().to_path_buf();
+            if path.is_dir() {
+                files.insert(key, None);
+                stack.push(path);
+            } else {
+                files.insert(key, Some(std::fs::read(&path).unwrap()));
+            }
+        }
+    }
+    files
+}
+
+struct Case {
+    name: &'static str,
+    /// Prepares the folder and returns the arguments.
+    setup: fn(&Path) -> Vec<String>,
+    /// Texts the error message must contain.
+    expected: &'static [&'static str],
+}
+
+fn args(list: &[&str]) -> Vec<String> {
+    list.iter().map(|s| s.to_string()).collect()
+}
+
+fn cases() -> Vec<Case> {
+    vec![
+        Case {
+            name: "rollout too large for memory",
+            setup: |dir| {
+                tiny_config(dir, "num_envs = 4", "num_envs = 1048576");
+                edit(&dir.join("tiny.toml"), "rollout_steps = 64", "rollout_steps = 1048576");
+                edit(
+                    &dir.join("tiny.toml"),
+                    "total_steps = 1024",
+                    "total_steps = 1099511627776",
+                );
+                args(&["train", "tiny.toml"])
+            },
+            expected: &[
+                "tiny.toml",
+                "run.num_envs x ppo.rollout_steps",
+                "would need about",
+                "TiB",
+            ],
+        },
+        Case {
+            name: "hidden layers too large for memory",
+            setup: |dir| {
+                tiny_config(
+                    dir,
+                    "actor_hidden = [16, 16]",
+                    "actor_hidden = [65536, 65536]",
+                );
+                args(&["train", "tiny.toml"])
+            },
+            expected: &["tiny.toml", "policy.actor_hidden", "would need about"],
+        },
+        Case {
+            name: "unknown key",
+            setup: |dir| {
+                tiny_config(dir, "gamma = 0.99", "gamma = 0.99\ngama = 0.9");
+                args(&["train", "tiny.toml"])
+            },
+            expected: &["tiny.toml", "line 14", "gama"],
+        },
+        Case {
+            name: "config that is not text",
+            setup: |dir| {
+                std::fs::write(dir.join("tiny.toml"), [0xff, 0xfe, 0x00, 0x9f]).unwrap();
+                args(&["train", "tiny.toml"])
+            },
+            expected: &["tiny.toml", "not UTF-8"],
+        },
+        Case {
+            name: "empty run name",
+            setup: |dir| {
+                write_tiny(dir);
+                args(&["train", "tiny.toml", "--name", ""])
+            },
+            expected: &["--name", "plain folder name"],
+        },
+        Case {
+            name: "run name leaving the output folder",
+            setup: |dir| {
+                write_tiny(dir);
+                args(&["train", "tiny.toml", "--name", "../x"])
+            },
+            expected: &["--name", "../x", "plain folder name"],
+        },
+        Case {
+            name: "output folder that is a file",
+            setup: |dir| {
+                write_tiny(dir);
+                std::fs::write(dir.join("runs"), "").unwrap();
+                args(&["train", "tiny.toml"])
+            },
+            expected: &["--out-dir runs", "is a file"],
+        },
+        Case {
+            name: "read-only output folder",
+            setup: |dir| {
+                write_tiny(dir);
+                let folder = read_only_folder(dir);
+                args(&["train", "tiny.toml", "--out-dir", &folder, "--quiet"])
+            },
+            expected: &["tiny", "os error"],
+        },
+        Case {
+            name: "latest names a missing checkpoint",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::write(dir.join("run/checkpoints/latest"), "update_000009").unwrap();
+                args(&["train", "--resume", &run])
+            },
+            expected: &["checkpoints/latest", "update_000009", "holds no checkpoint"],
+        },
+        Case {
+            name: "latest is empty",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::write(dir.join("run/checkpoints/latest"), "").unwrap();
+                args(&["eval", &run, "--episodes", "2"])
+            },
+            expected: &["checkpoints/latest", "holds ``", "update_000010"],
+        },
+        Case {
+            name: "latest is an absolute path",
+            setup: |dir| {
+                let run = run_copy(dir);
+                let absolute = dir.join("run/checkpoints/update_000004");
+                std::fs::write(
+                    dir.join("run/checkpoints/latest"),
+                    absolute.display().to_string(),
+                )
+                .unwrap();
+                args(&["export", &run])
+            },
+            expected: &["checkpoints/latest", "holds `/", "inside"],
+        },
+        Case {
+            name: "latest points into another run",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::write(
+                    dir.join("run/checkpoints/latest"),
+                    "../../other/checkpoints/update_000004",
+                )
+                .unwrap();
+                args(&["train", "--resume", &run])
+            },
+            expected: &["checkpoints/latest", "../../other"],
+        },
+        Case {
+            name: "hand-edited update counter",
+            setup: |dir| {
+                let run = run_copy(dir);
+                edit(
+                    &dir.join("run/checkpoints/update_000004/state.json"),
+                    "\"update\":4",
+                    "\"update\":2",
+                );
+                args(&["train", "--resume", &run])
+            },
+            expected: &["update_000004/state.json", "`update` = 2"],
+        },
+        Case {
+            name: "update counter beyond the run length",
+            setup: |dir| {
+                let run = run_copy(dir);
+                edit(
+                    &dir.join("run/checkpoints/update_000004/state.json"),
+                    "\"update\":4",
+                    "\"update\":400",
+                );
+                args(&["train", "--resume", &run])
+            },
+            expected: &["state.json", "`update` = 400", "[1, 4]"],
+        },
+        Case {
+            name: "hand-edited step counter",
+            setup: |dir| {
+                let run = run_copy(dir);
+                edit(
+                    &dir.join("run/checkpoints/update_000004/state.json"),
+                    "\"global_step\":1024",
+                    "\"global_step\":999",
+                );
+                args(&["train", "--resume", &run])
+            },
+            expected: &["state.json", "`global_step` = 999", "1024"],
+        },
+        Case {
+            name: "garbage config.toml in a run folder",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::write(dir.join("run/config.toml"), [0x00, 0xc3, 0x28, 0x0a]).unwrap();
+                args(&["train", "--resume", &run])
+            },
+            expected: &["run/config.toml", "not UTF-8"],
+        },
+        Case {
+            name: "malformed config.toml in a run folder",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::write(dir.join("run/config.toml"), "[run\nenv = 1\n").unwrap();
+                args(&["eval", &run])
+            },
+            expected: &["run/config.toml", "line 1"],
+        },
+        Case {
+            name: "eval of a run with --params",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&["eval", &run, "--params", "configs/calibrated.toml"])
+            },
+            expected: &["--params", "cannot be used with"],
+        },
+        Case {
+            name: "eval of a run with --policy",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&["eval", &run, "--policy", "policy.onnx"])
+            },
+            expected: &["--policy", "cannot be used with"],
+        },
+        Case {
+            name: "dataset options without --params",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&["eval", &run, "--split", "train"])
+            },
+            expected: &["--split", "--params"],
+        },
+        Case {
+            name: "more evaluation episodes than memory",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&["eval", &run, "--episodes", "100000000000"])
+            },
+            expected: &["--episodes 100000000000", "would need about"],
+        },
+        Case {
+            name: "endless latency measurement",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&["export", &run, "--latency", "1000000000000"])
+            },
+            expected: &["--latency", "1000000000000", "1000000"],
+        },
+        Case {
+            name: "more simulated environments than memory",
+            setup: |_| {
+                args(&[
+                    "bench",
+                    "sim",
+                    "--grid",
+                    "11x13",
+                    "--envs",
+                    "1000000000",
+                    "--seconds",
+                    "0",
+                ])
+            },
+            expected: &["--grid 11x13 --envs 1000000000", "would need about"],
+        },
+        Case {
+            name: "simulate into a file",
+            setup: |dir| {
+                std::fs::write(dir.join("out"), "").unwrap();
+                args(&["simulate", &trajectory(), "--out", "out", "--seconds", "0.01"])
+            },
+            expected: &["--out out", "is a file"],
+        },
+        Case {
+            name: "three numbers for a two-number grid",
+            setup: |dir| {
+                let reference = std::fs::read_to_string(repo().join("configs/reference.toml"))
+                    .unwrap()
+                    .replace("grid = [21, 25]", "grid = [16, 19, 3]");
+                std::fs::write(dir.join("scene.toml"), reference).unwrap();
+                args(&["simulate", &trajectory(), "--params", "scene.toml"])
+            },
+            expected: &["scene.toml", "grid", "2"],
+        },
+        Case {
+            name: "particles between markers overflowing",
+            setup: |_| {
+                args(&[
+                    "simulate",
+                    &trajectory(),
+                    "--between",
+                    "3074457345618258603",
+                ])
+            },
+            expected: &["--between 3074457345618258603"],
+        },
+        Case {
+            name: "calibration into a file",
+            setup: |dir| {
+                std::fs::write(dir.join("out"), "").unwrap();
+                let config = repo().join("configs/calibrate.toml").display().to_string();
+                args(&["calibrate", &config, "--out", "out"])
+            },
+            expected: &["out: is a file", "calibrate.toml"],
+        },
+        Case {
+            name: "calibration log row outside the bounds",
+            setup: |dir| {
+                let data = repo().join("data/deformable-sim-real");
+                std::fs::write(
+                    dir.join("calibrate.toml"),
+                    format!(
+                        "data = \"{}\"\ntrajectories = [\"HHHHH\"]\nout_dir = \"out\"\n\n\
+                         [sim]\npreset = \"reference\"\nbetween = 0\nmax_seconds = 0.05\n\n\
+                         [optimiser]\niterations = 1\nbatch_size = 2\ninitial_points = 1\nseed = 5\n\n\
+                         [[param]]\nname = \"k_tri_e\"\nlower = 1.0e4\nupper = 1.0e6\nlog = true\n",
+                        data.display()
+                    ),
+                )
+                .unwrap();
+                std::fs::create_dir(dir.join("out")).unwrap();
+                std::fs::write(
+                    dir.join("out/evaluations.csv"),
+                    "batch,candidate,k_tri_e,objective,loss,chamfer_m,object_mse_m2\n\
+                     0,0,5e7,-3,0.05,0.1,0.001\n",
+                )
+                .unwrap();
+                args(&["calibrate", "calibrate.toml"])
+            },
+            expected: &[
+                "out/evaluations.csv",
+                "line 2",
+                "`k_tri_e` = 50000000",
+                "outside its bounds",
+            ],
+        },
+    ]
+}
+
+#[test]
+fn bad_inputs_exit_with_2_name_the_culprit_and_write_nothing() {
+    let mut failures = Vec::new();
+    for case in cases() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = (case.setup)(dir.path());
+        let before = snapshot(dir.path());
+        let out = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+            .args(&args)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let mut problems = Vec::new();
+        if out.status.code() != Some(2) {
+            problems.push(format!("exit code {:?}", out.status.code()));
+        }
+        for text in case.expected {
+            if !stderr.contains(text) {
+                problems.push(format!("message lacks `{text}`"));
+            }
+        }
+        if stderr.contains("panicked") || stderr.matches("os error").count() > 1 {
+            problems.push("panic or repeated OS error".into());
+        }
+        if snapshot(dir.path()) != before {
+            problems.push("the folder changed".into());
+        }
+        if !problems.is_empty() {
+            failures.push(format!(
+                "{}: {}\n  rlpkg {:?}\n  stderr: {stderr}",
+                case.name,
+                problems.join(", "),
+                args
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
