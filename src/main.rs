@@ -4,6 +4,7 @@
 
 mod cmd;
 mod error;
+mod files;
 mod render;
 
 use clap::{Parser, Subcommand};

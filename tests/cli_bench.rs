@@ -20,6 +20,8 @@ fn bench_sim_prints_json_rows_with_positive_throughput() {
         "1,3",
         "--seconds",
         "0.1",
+        "--workload",
+        "motionless",
         "--json",
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -46,6 +48,82 @@ fn bench_sim_rejects_a_malformed_grid_with_exit_code_2() {
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("--grid"), "{stderr}");
+}
+
+#[test]
+fn bench_sim_runs_every_workload_side_by_side() {
+    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/data/deformable-sim-real");
+    let out = rlpkg(&[
+        "bench",
+        "sim",
+        "--grid",
+        "11x13",
+        "--envs",
+        "1,3",
+        "--seconds",
+        "0.2",
+        "--data",
+        data,
+        "--seed",
+        "4",
+        "--json",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let rows: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+    let rows = rows.as_array().expect("a JSON array");
+    let expected = [
+        ("motionless", 1),
+        ("replay", 1),
+        ("command", 1),
+        ("motionless", 3),
+        ("replay", 3),
+        ("command", 3),
+    ];
+    assert_eq!(rows.len(), expected.len());
+    for (row, (workload, envs)) in rows.iter().zip(expected) {
+        assert_eq!(row["workload"], workload);
+        assert_eq!(row["envs"], envs);
+        assert_eq!(row["particles"], 2 * 11 * 13 + 96);
+        assert_eq!(row["frozen_envs"], 0, "{row}");
+        let simulated = row["simulated_s_per_wall_s"].as_f64().unwrap();
+        let total = row["real_time_factor_total"].as_f64().unwrap();
+        assert!(
+            simulated > 0.0 && (simulated - total).abs() <= 1e-9 * total,
+            "{row}"
+        );
+        // Only the command workload commands the tools, within the limits.
+        let commands = row["commands"].as_u64().unwrap();
+        assert_eq!(commands > 0, workload == "command", "{row}");
+        assert_eq!(row["clamped_commands"], 0);
+    }
+    for workload in ["motionless", "replay", "command"] {
+        assert!(stderr.contains(workload), "{stderr}");
+    }
+}
+
+#[test]
+fn bench_sim_rejects_an_unknown_workload_and_a_missing_dataset_with_exit_code_2() {
+    let out = rlpkg(&["bench", "sim", "--workload", "moving", "--seconds", "0"]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--workload") && stderr.contains("moving"),
+        "{stderr}"
+    );
+    let out = rlpkg(&[
+        "bench",
+        "sim",
+        "--workload",
+        "replay",
+        "--data",
+        "no/such/dataset",
+        "--seconds",
+        "0",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("no/such/dataset"), "{stderr}");
 }
 
 #[test]

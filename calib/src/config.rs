@@ -11,25 +11,8 @@ use crate::bo::{Acquisition, BoSettings};
 use crate::loss::LossWeights;
 use crate::space::{ParamSpace, ParamSpec};
 
-/// Simulator parameter names that can be calibrated: the paper's names, Warp's friction `k_con_f`,
-/// and `disc_mass_scale` (the scene's `disc.mass_scale`, simulated disc kg per recorded kg).
-pub const PARAMETER_NAMES: [&str; 15] = [
-    "k_tri_e",
-    "k_tri_a",
-    "k_tri_d",
-    "k_edge_e",
-    "k_edge_d",
-    "k_cup_e",
-    "k_cup_a",
-    "k_cup_d",
-    "k_spr_e",
-    "k_spr_d",
-    "k_con_e",
-    "k_con_d",
-    "k_con_f",
-    "mu_con",
-    "disc_mass_scale",
-];
+/// Simulator parameter names that can be calibrated (defined beside the replay set-up).
+pub use rlpkg_replay::PARAMETER_NAMES;
 
 /// A configuration error: file, key and what was expected.
 #[derive(Debug, thiserror::Error)]

@@ -30,6 +30,17 @@ pub struct SimBenchArgs {
     /// Scene preset (`reference` or `physical`) or a path to a scene TOML.
     #[arg(long, default_value = "reference")]
     scene: String,
+    /// Workloads, comma-separated: `motionless` (identical packages held still), `replay` (the
+    /// recordings of --data replayed, cycled over the batch, random object masses, no rest
+    /// period), `command` (a smooth pseudo-random twist command per tool every 1/20 s).
+    #[arg(long, default_value = "motionless,replay,command")]
+    workload: String,
+    /// Dataset whose recordings the `replay` workload replays.
+    #[arg(long, value_name = "DIR", default_value = "data/deformable-sim-real")]
+    data: std::path::PathBuf,
+    /// Seed of the random object masses and twist commands.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
     /// Print the results as JSON on stdout (the table then goes to stderr).
     #[arg(long)]
     json: bool,
@@ -91,19 +102,37 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
             .map_err(input_error)?;
         }
     }
+    let workloads = parse_list("workload", &args.workload, |s| {
+        ["motionless", "replay", "command"]
+            .contains(&s)
+            .then(|| s.to_string())
+    })
+    .map_err(|err| input_error(format!("{err}; expected motionless, replay or command")))?;
+    let targets = if workloads.iter().any(|w| w == "replay") {
+        rlpkg_replay::workload::load_targets(&args.data, scene.disc.hold_at_recorded_start)
+            .map_err(|err| input_error(format!("--data {}: {err}", args.data.display())))?
+    } else {
+        Vec::new()
+    };
     let mut rows = Vec::new();
     for grid in &grids {
         for &n in &envs {
-            let row = rlpkg_sim::bench::run(&scene, *grid, n, args.seconds).map_err(|err| {
-                input_error(format!("--grid {}x{} --envs {n}: {err}", grid[0], grid[1]))
-            })?;
-            eprintln!(
-                "grid {}x{} envs {n}: {:.2} M particle-substeps/s",
-                grid[0],
-                grid[1],
-                row.particle_substeps_per_s / 1e6
-            );
-            rows.push(row);
+            for workload in &workloads {
+                let what = format!(
+                    "--grid {}x{} --envs {n} --workload {workload}",
+                    grid[0], grid[1]
+                );
+                let row = measure_workload(workload, &scene, *grid, n, &args, &targets)
+                    .map_err(|err| input_error(format!("{what}: {err}")))?;
+                eprintln!(
+                    "{workload} grid {}x{} envs {n}: {:.2} M particle-substeps/s, {:.3} simulated s per wall s",
+                    grid[0],
+                    grid[1],
+                    row.particle_substeps_per_s / 1e6,
+                    row.simulated_s_per_wall_s
+                );
+                rows.push(row);
+            }
         }
     }
     let table = rlpkg_sim::bench::format_table(&rows);
@@ -115,6 +144,28 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
         write!(stdout, "{table}")?;
     }
     Ok(())
+}
+
+/// One measurement of `workload` (one of the names `run_sim` accepts).
+fn measure_workload(
+    workload: &str,
+    scene: &rlpkg_sim::SceneConfig,
+    grid: [usize; 2],
+    envs: usize,
+    args: &SimBenchArgs,
+    targets: &[rlpkg_replay::Target],
+) -> anyhow::Result<rlpkg_sim::bench::BenchRow> {
+    use rlpkg_sim::bench;
+    Ok(match workload {
+        "motionless" => bench::run(scene, grid, envs, args.seconds)?,
+        "command" => bench::run_commanded(scene, grid, envs, args.seconds, args.seed)?,
+        _ => {
+            bench::reset_peak_rss();
+            let mut sim =
+                rlpkg_replay::workload::replay_simulator(scene, grid, envs, targets, args.seed)?;
+            bench::measure("replay", &mut sim, args.seconds, None)?
+        }
+    })
 }
 
 /// Runs a benchmark subcommand.

@@ -14,23 +14,22 @@ use std::time::Instant;
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use plotters::prelude::*;
-use rlpkg_calib::evaluate::{perturbed, real_time_factor, SiteErrors};
-use rlpkg_calib::loss::{table1_text, LossWeights, Table1Row, TrajectoryLoss};
-use rlpkg_calib::objective::{
-    rollout, Candidate, FrameObservation, Observer, RolloutOutcome, Target,
-};
 use rlpkg_mocap::{Dataset, Split, Trajectory};
+use rlpkg_replay::evaluate::{perturbed, real_time_factor, SiteErrors};
+use rlpkg_replay::loss::{table1_text, LossWeights, Table1Row, TrajectoryLoss};
+use rlpkg_replay::{
+    mean_loss, rollout, Candidate, FrameObservation, Observer, RolloutOutcome, Target,
+};
 use rlpkg_sim::{Model, SceneConfig};
 use serde::Serialize;
 
 use crate::error::input_error;
+use crate::files::write_atomic;
+use crate::render::plot::{write_loss_plot, write_marker_error_plot};
 use crate::render::{self, Bounds, Disc, Frame, View};
 
 /// Picture size of the scene stills.
 const STILL_SIZE: (u32, u32) = (1280, 720);
-/// Picture size of the plots.
-const PLOT_SIZE: (u32, u32) = (900, 600);
 /// Instants pictured per trajectory, as fractions of its compared frames.
 const STILL_FRACTIONS: [f64; 4] = [0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0];
 /// Grids of the sweep: particles between markers (Table 2: 11x13, 16x19, 21x25, 26x31).
@@ -226,8 +225,7 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
         perturb,
     };
     let json = serde_json::to_string_pretty(&summary)?;
-    rlpkg_mocap::dataset::write_atomic(&out.join("summary.json"), json.as_bytes())
-        .map_err(input_error)?;
+    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(input_error)?;
     if args.json {
         println!("{json}");
     } else {
@@ -340,11 +338,10 @@ fn sensitivity(
         .iter()
         .zip(&outcomes)
         .map(|(&percent, o)| {
-            let summary = rlpkg_calib::objective::summarise(o, weights);
             let (cd, mse) = pooled_means(o);
             PerturbRow {
                 percent,
-                loss: summary.loss,
+                loss: mean_loss(o, weights),
                 chamfer_mean_m: cd,
                 object_mse_mean_m2: mse,
             }
@@ -536,148 +533,4 @@ impl Observer for Pictures {
     fn progress(&mut self, done: u64, total: u64) {
         self.progress.progress(done, total);
     }
-}
-
-/// Draws into a temporary PNG beside `path`, then renames it into place.
-fn write_plot(
-    path: &Path,
-    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
-) -> anyhow::Result<()> {
-    crate::render::ensure_font()?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let temporary = path.with_file_name(format!(".{name}.{}.tmp.png", std::process::id()));
-    let result: anyhow::Result<()> = (|| {
-        let area = BitMapBackend::new(&temporary, PLOT_SIZE).into_drawing_area();
-        area.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
-        draw(&area)?;
-        area.present().map_err(|e| anyhow::anyhow!("{e}"))?;
-        drop(area);
-        std::fs::rename(&temporary, path)?;
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temporary);
-    }
-    result.with_context(|| format!("writing {}", path.display()))
-}
-
-/// Fig. 10: mean distance from each marker site to the nearest recorded marker, over the package
-/// (sites at their row-0 positions, top view x-z), colour from green (0) to red (max).
-fn write_marker_error_plot(path: &Path, target: &Target, errors: &[f64]) -> anyhow::Result<()> {
-    let sites = &target.initial_markers;
-    let finite_max = errors
-        .iter()
-        .copied()
-        .filter(|e| e.is_finite())
-        .fold(0.0f64, f64::max)
-        .max(1e-6);
-    let (x0, x1) = extent(sites.iter().map(|p| p[0] as f64));
-    let (z0, z1) = extent(sites.iter().map(|p| p[2] as f64));
-    write_plot(path, |area| {
-        let mut chart = ChartBuilder::on(area)
-            .caption(
-                format!(
-                    "{}: mean error per marker site (max {:.1} mm)",
-                    target.id,
-                    finite_max * 1e3
-                ),
-                ("sans-serif", 22),
-            )
-            .margin(15)
-            .x_label_area_size(40)
-            .y_label_area_size(55)
-            .build_cartesian_2d(x0 - 0.03..x1 + 0.03, z0 - 0.03..z1 + 0.03)
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        chart
-            .configure_mesh()
-            .x_desc("x (m)")
-            .y_desc("z (m)")
-            .draw()
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        chart
-            .draw_series(sites.iter().zip(errors).map(|(p, &e)| {
-                let f = if e.is_finite() { e / finite_max } else { 1.0 };
-                let colour = RGBColor((255.0 * f) as u8, (200.0 * (1.0 - f)) as u8, 40);
-                Circle::new((p[0] as f64, p[2] as f64), 12, colour.filled())
-            }))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        chart
-            .draw_series(sites.iter().zip(errors).map(|(p, &e)| {
-                Text::new(
-                    format!("{:.0}", e * 1e3),
-                    (p[0] as f64 + 0.006, p[2] as f64 + 0.006),
-                    ("sans-serif", 13),
-                )
-            }))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        Ok(())
-    })
-}
-
-/// The per-frame package Chamfer distance and object error (as a distance, m) over time.
-fn write_loss_plot(path: &Path, target: &Target, loss: &TrajectoryLoss) -> anyhow::Result<()> {
-    let cd: Vec<(f64, f64)> = loss
-        .frames
-        .iter()
-        .map(|f| (target.times[f.frame], f.chamfer_m))
-        .collect();
-    let obj: Vec<(f64, f64)> = loss
-        .frames
-        .iter()
-        .map(|f| (target.times[f.frame], f.object_sq_m2.sqrt()))
-        .collect();
-    let y_max = cd
-        .iter()
-        .chain(&obj)
-        .map(|p| p.1)
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max)
-        .max(1e-3)
-        * 1.1;
-    let t_max = target.duration().max(1e-3);
-    write_plot(path, |area| {
-        let mut chart = ChartBuilder::on(area)
-            .caption(
-                format!("{}: error over time", target.id),
-                ("sans-serif", 22),
-            )
-            .margin(15)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(0.0..t_max, 0.0..y_max)
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        chart
-            .configure_mesh()
-            .x_desc("trajectory time (s)")
-            .y_desc("error (m)")
-            .draw()
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        chart
-            .draw_series(LineSeries::new(cd, &BLUE))
-            .map_err(|e| anyhow::anyhow!("{e}"))?
-            .label("package Chamfer distance")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
-        chart
-            .draw_series(LineSeries::new(obj, &RED))
-            .map_err(|e| anyhow::anyhow!("{e}"))?
-            .label("object position error")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        Ok(())
-    })
-}
-
-fn extent(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-        (lo.min(v), hi.max(v))
-    })
 }

@@ -23,12 +23,13 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use rlpkg_calib::objective::Target;
-use rlpkg_mocap::dataset::write_atomic;
 use rlpkg_mocap::{load_trajectory, Trajectory};
-use rlpkg_sim::{EnvSpec, Model, SceneConfig, Simulator, SurfaceEmbedding};
+use rlpkg_replay::loss::chamfer_distance;
+use rlpkg_replay::Target;
+use rlpkg_sim::{Model, SceneConfig, Simulator, SurfaceEmbedding};
 
 use crate::error::input_error;
+use crate::files::write_atomic;
 use crate::render::{self, Bounds, Disc, Frame, GifWriter, View};
 
 /// Pitch of the real 6 x 7 marker grid (2 inches).
@@ -289,16 +290,10 @@ impl Replay {
         // The same placement and tool drive as the calibration uses, so a replay shows what it fits.
         let target = Target::new(recording, None, config.disc.hold_at_recorded_start)
             .map_err(|err| input_error(format!("{}: {err}", args.trajectory.display())))?;
+        let spec = target.env_spec(config.params, None);
         let placement = target.placement;
         let initial_markers = target.initial_markers;
         let model = Arc::new(Model::new(config).map_err(input_error)?);
-        let spec = EnvSpec {
-            placement,
-            params: config.params,
-            object_mass_kg: target.object_mass_kg,
-            disc_mass_scale: None,
-            trajectory: target.tool,
-        };
         let sim = Simulator::new(model.clone(), vec![spec]).map_err(input_error)?;
 
         let marker_sites = sim.embed(0, &initial_markers);
@@ -523,22 +518,11 @@ fn picture_bounds(recording: &Trajectory, sim: &Simulator, last_frame: usize) ->
     (scene.padded(0.03), close_up.padded(0.02))
 }
 
-/// Symmetric mean nearest-neighbour distance (reference-model.md §8.3), in metres; NaN when either
-/// set is empty.
+/// The package Chamfer distance of the calibration (`rlpkg_replay::loss`, reference-model.md §8.3)
+/// between simulated sites and a frame's markers, in metres; NaN when either set is empty.
 fn chamfer(simulated: &[[f32; 3]], recorded: &[[f64; 3]]) -> f64 {
     let simulated: Vec<[f64; 3]> = simulated.iter().map(|p| p.map(f64::from)).collect();
-    let one_way = |from: &[[f64; 3]], to: &[[f64; 3]]| {
-        let nearest = |a: &[f64; 3]| {
-            to.iter()
-                .map(|b| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt())
-                .fold(f64::INFINITY, f64::min)
-        };
-        from.iter().map(nearest).sum::<f64>() / from.len() as f64
-    };
-    if simulated.is_empty() || recorded.is_empty() {
-        return f64::NAN;
-    }
-    0.5 * (one_way(&simulated, recorded) + one_way(recorded, &simulated))
+    chamfer_distance(&simulated, recorded).unwrap_or(f64::NAN)
 }
 
 /// Everything the replay produced.
@@ -771,5 +755,12 @@ mod tests {
             0.0
         );
         assert!(chamfer(&[], &recorded).is_nan());
+        assert!(chamfer(&simulated, &[]).is_nan());
+        // The very function the calibration's loss uses, on the same points.
+        let simulated_f64 = simulated.map(|p| p.map(f64::from));
+        assert_eq!(
+            chamfer(&simulated, &recorded),
+            chamfer_distance(&simulated_f64, &recorded).unwrap()
+        );
     }
 }

@@ -8,6 +8,7 @@
 mod animation;
 mod camera;
 mod draw;
+pub mod plot;
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;

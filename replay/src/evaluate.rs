@@ -2,7 +2,7 @@
 //! Fig. 10), the sensitivity perturbation (every calibrated value scaled up by a percentage, as the
 //! study's `eval`), and the real-time factor of a rollout (Table 2).
 
-use crate::objective::{get_param, set_param, Candidate};
+use crate::rollout::{get_param, set_param, Candidate};
 
 use crate::loss::squared_distance;
 

@@ -1,0 +1,51 @@
+//! Recorded trajectories as simulator set-ups, shared by `rlpkg simulate`, `rlpkg eval --params`,
+//! calibration (`rlpkg-calib`), the transport task and the benchmark, none of which needs to depend
+//! on another for it.
+//!
+//! * [`target`]: the scene presets with grid and time-step overrides ([`load_scene`]) and a recording
+//!   prepared for replay ([`Target`]: placement, tool motion, the frames to compare);
+//! * [`rollout`]: named simulator parameters ([`Candidate`]) and the batched rollout of candidates x
+//!   recordings, with per-frame hooks ([`Observer`]);
+//! * [`loss`]: the comparison with the recording: the package Chamfer distance (the one
+//!   implementation in the workspace), the object error, the paper's Table 1;
+//! * [`evaluate`]: per-marker errors, the sensitivity perturbation, the real-time factor;
+//! * [`workload`]: many different, moving environments from the recordings (randomised masses),
+//!   e.g. for `rlpkg bench sim`.
+
+#![warn(missing_docs)]
+
+pub mod evaluate;
+pub mod loss;
+pub mod rollout;
+pub mod target;
+pub mod workload;
+
+pub use rollout::{
+    get_param, mean_loss, rollout, set_param, Candidate, FrameObservation, Observer,
+    RolloutOutcome, PARAMETER_NAMES,
+};
+pub use target::{load_scene, Target};
+
+use rlpkg_sim::SimError;
+
+/// Errors of setting up or running a replay.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// The simulator rejected the scene or an environment.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// A recorded trajectory cannot be replayed.
+    #[error("trajectory {id}: {message}")]
+    Trajectory {
+        /// Trajectory id.
+        id: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The recordings cannot be read.
+    #[error(transparent)]
+    Data(#[from] rlpkg_mocap::DataError),
+    /// An unknown parameter name.
+    #[error("unknown simulator parameter `{0}`")]
+    UnknownParameter(String),
+}

@@ -1,0 +1,211 @@
+//! Plots of a replay against its recording (the paper's Fig. 10 and the error over time), written
+//! as PNG files with plotters.
+
+use std::path::Path;
+
+use anyhow::Context;
+use plotters::prelude::*;
+use rlpkg_replay::loss::TrajectoryLoss;
+use rlpkg_replay::Target;
+
+/// Picture size of the plots.
+const PLOT_SIZE: (u32, u32) = (900, 600);
+
+/// Draws into a temporary PNG beside `path`, then renames it into place.
+fn write_plot(
+    path: &Path,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    super::ensure_font()?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let temporary = path.with_file_name(format!(".{name}.{}.tmp.png", std::process::id()));
+    let result: anyhow::Result<()> = (|| {
+        let area = BitMapBackend::new(&temporary, PLOT_SIZE).into_drawing_area();
+        area.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+        draw(&area)?;
+        area.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+        drop(area);
+        std::fs::rename(&temporary, path)?;
+        Ok(())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    result.with_context(|| format!("writing {}", path.display()))
+}
+
+/// Fig. 10: mean distance from each marker site to the nearest recorded marker, over the package
+/// (sites at their row-0 positions, top view x-z), colour from green (0) to red (max).
+pub fn write_marker_error_plot(path: &Path, target: &Target, errors: &[f64]) -> anyhow::Result<()> {
+    let sites = &target.initial_markers;
+    let finite_max = errors
+        .iter()
+        .copied()
+        .filter(|e| e.is_finite())
+        .fold(0.0f64, f64::max)
+        .max(1e-6);
+    let (x0, x1) = extent(sites.iter().map(|p| p[0] as f64));
+    let (z0, z1) = extent(sites.iter().map(|p| p[2] as f64));
+    write_plot(path, |area| {
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!(
+                    "{}: mean error per marker site (max {:.1} mm)",
+                    target.id,
+                    finite_max * 1e3
+                ),
+                ("sans-serif", 22),
+            )
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(55)
+            .build_cartesian_2d(x0 - 0.03..x1 + 0.03, z0 - 0.03..z1 + 0.03)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("x (m)")
+            .y_desc("z (m)")
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .draw_series(sites.iter().zip(errors).map(|(p, &e)| {
+                let f = if e.is_finite() { e / finite_max } else { 1.0 };
+                let colour = RGBColor((255.0 * f) as u8, (200.0 * (1.0 - f)) as u8, 40);
+                Circle::new((p[0] as f64, p[2] as f64), 12, colour.filled())
+            }))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .draw_series(sites.iter().zip(errors).map(|(p, &e)| {
+                Text::new(
+                    format!("{:.0}", e * 1e3),
+                    (p[0] as f64 + 0.006, p[2] as f64 + 0.006),
+                    ("sans-serif", 13),
+                )
+            }))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok(())
+    })
+}
+
+/// The per-frame package Chamfer distance and object error (as a distance, m) over time.
+pub fn write_loss_plot(path: &Path, target: &Target, loss: &TrajectoryLoss) -> anyhow::Result<()> {
+    let cd: Vec<(f64, f64)> = loss
+        .frames
+        .iter()
+        .map(|f| (target.times[f.frame], f.chamfer_m))
+        .collect();
+    let obj: Vec<(f64, f64)> = loss
+        .frames
+        .iter()
+        .map(|f| (target.times[f.frame], f.object_sq_m2.sqrt()))
+        .collect();
+    let y_max = cd
+        .iter()
+        .chain(&obj)
+        .map(|p| p.1)
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max)
+        .max(1e-3)
+        * 1.1;
+    let t_max = target.duration().max(1e-3);
+    write_plot(path, |area| {
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!("{}: error over time", target.id),
+                ("sans-serif", 22),
+            )
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..t_max, 0.0..y_max)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("trajectory time (s)")
+            .y_desc("error (m)")
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .draw_series(LineSeries::new(cd, &BLUE))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label("package Chamfer distance")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        chart
+            .draw_series(LineSeries::new(obj, &RED))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label("object position error")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok(())
+    })
+}
+
+fn extent(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use rlpkg_sim::{Placement, ToolTrajectory};
+
+    use super::*;
+
+    /// A replay target of two compared frames over three marker sites.
+    fn target() -> Target {
+        let sites = vec![[0.0, 0.25, 0.0], [0.1, 0.25, 0.0], [0.0, 0.25, 0.1]];
+        Target {
+            id: "PLOT".into(),
+            placement: Placement::new([0.0, 0.25, 0.0], [0.05, 0.26, 0.05], [0.05, 0.2, 0.05]),
+            object_mass_kg: 0.4,
+            tool: Arc::new(ToolTrajectory::hold(
+                [0.05, 0.4, 0.05],
+                [0.0, 0.0, 0.0, 1.0],
+            )),
+            initial_markers: sites,
+            times: vec![0.0, 0.5],
+            markers: vec![vec![[0.0, 0.25, 0.0]]; 2],
+            object: vec![[0.05, 0.2, 0.05]; 2],
+        }
+    }
+
+    #[test]
+    fn plots_are_written_as_whole_png_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = target();
+        let mut loss = TrajectoryLoss::new("PLOT");
+        for k in 0..2 {
+            let simulated = [[0.0, 0.25 + 0.01 * k as f64, 0.0]];
+            loss.push_frame(k, &simulated, &target.markers[k], &[0.05; 3], &[0.05; 3]);
+        }
+        let errors_png = dir.path().join("PLOT_marker_error.png");
+        let loss_png = dir.path().join("PLOT_loss.png");
+        write_marker_error_plot(&errors_png, &target, &[0.001, 0.004, f64::NAN]).unwrap();
+        write_loss_plot(&loss_png, &target, &loss).unwrap();
+        for path in [&errors_png, &loss_png] {
+            let bytes = std::fs::read(path).unwrap();
+            assert_eq!(&bytes[1..4], b"PNG", "{}", path.display());
+            // IHDR: width and height, big-endian, at bytes 16..24.
+            let width = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+            let height = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
+            assert_eq!((width, height), PLOT_SIZE);
+        }
+        // No temporary file is left beside them; a missing folder is an error naming the file.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+        let missing = dir.path().join("absent").join("x_loss.png");
+        let err = write_loss_plot(&missing, &target, &loss).unwrap_err();
+        assert!(format!("{err:#}").contains("x_loss.png"), "{err:#}");
+    }
+}
