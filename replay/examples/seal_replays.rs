@@ -2,7 +2,7 @@
 //! per recording, the peak seal utilisation of each cup over the replay and every seal event.
 //!
 //! ```sh
-//! cargo run --release -p rlpkg-calib --example seal_replays -- [scene.toml] [grid RxC] [time scale] [seconds]
+//! cargo run --release -p rlpkg-replay --example seal_replays -- [scene.toml] [grid RxC] [time scale] [seconds]
 //! ```
 //! Defaults: `configs/physical.toml`, its own grid, time scale 1 (2 plays each recording twice as
 //! fast), whole recordings. The scene's seal settings are used as they are.
@@ -10,7 +10,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use rlpkg_calib::objective::Target;
+use rlpkg_replay::Target;
 use rlpkg_mocap::dataset::Dataset;
 use rlpkg_sim::{CupLoad, EnvSpec, Model, SceneConfig, Simulator, ToolSample, ToolTrajectory};
 

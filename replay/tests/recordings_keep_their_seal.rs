@@ -2,12 +2,12 @@
 //! settings, none may lose a cup. The test suite replays the first 1.5 s of each on the scene's own
 //! 16 x 19 grid (on 11 x 13 a heavy disc can slip between the coarse sheet's particles, which the
 //! health check reports). The closing note of the seal model gives the whole replays, made with
-//! `cargo run --release -p rlpkg-calib --example seal_replays`.
+//! `cargo run --release -p rlpkg-replay --example seal_replays`.
 
 use std::path::Path;
 use std::sync::Arc;
 
-use rlpkg_calib::objective::Target;
+use rlpkg_replay::Target;
 use rlpkg_mocap::dataset::Dataset;
 use rlpkg_sim::{CupLoad, EnvSpec, Model, SceneConfig, Simulator};
 
