@@ -231,7 +231,9 @@ fn scene_config(args: &SimulateArgs) -> anyhow::Result<(SceneConfig, String)> {
         (None, Some(p)) => {
             let side = |base: usize, per: usize| p.checked_mul(per)?.checked_add(base);
             let grid = side(6, 5).zip(side(7, 6)).ok_or_else(|| {
-                input_error(format!("--between {p}: expected a small number of particles"))
+                input_error(format!(
+                    "--between {p}: expected a small number of particles"
+                ))
             })?;
             Some(([grid.0, grid.1], "--between"))
         }

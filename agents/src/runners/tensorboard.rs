@@ -353,7 +353,10 @@ mod tests {
         ];
         assert_eq!(back.len(), expected.len());
         for (event, (step, tag, value)) in back.iter().zip(expected) {
-            assert_eq!((event.step, event.tag.as_str(), event.value), (step, tag, value));
+            assert_eq!(
+                (event.step, event.tag.as_str(), event.value),
+                (step, tag, value)
+            );
         }
     }
 
