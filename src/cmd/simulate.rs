@@ -761,6 +761,29 @@ mod tests {
     }
 
     #[test]
+    fn leftover_temporary_files_are_removed_and_outputs_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        std::fs::create_dir_all(out.join("frames")).unwrap();
+        let leftovers = [
+            ".summary.json.AbC123",
+            ".replay.gif.4242.0.tmp",
+            "frames/.000_t-2.000s.png.4242.3.tmp.png",
+        ];
+        let kept = ["metrics.csv", "frames/000_t-2.000s.png", ".hidden-notes"];
+        for name in leftovers.iter().chain(&kept) {
+            std::fs::write(out.join(name), "x").unwrap();
+        }
+        prepare_output(&out).unwrap();
+        for name in leftovers {
+            assert!(!out.join(name).exists(), "{name}");
+        }
+        for name in kept {
+            assert!(out.join(name).exists(), "{name}");
+        }
+    }
+
+    #[test]
     fn chamfer_is_the_symmetric_mean_nearest_distance() {
         let simulated = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]];
         let recorded = [[0.0, 0.1, 0.0]];
