@@ -84,7 +84,10 @@ mod tests {
         .context("training runs/x");
         let text = message(&err);
         assert_eq!(text.matches("os error 28").count(), 1, "{text}");
-        assert!(text.starts_with("training runs/x: runs/x/events: "), "{text}");
+        assert!(
+            text.starts_with("training runs/x: runs/x/events: "),
+            "{text}"
+        );
         assert_eq!(exit_code(&err), 1);
         assert_eq!(exit_code(&input_error("bad").context("while reading")), 2);
     }

@@ -162,7 +162,11 @@ fn cases() -> Vec<Case> {
             name: "rollout too large for memory",
             setup: |dir| {
                 tiny_config(dir, "num_envs = 4", "num_envs = 1048576");
-                edit(&dir.join("tiny.toml"), "rollout_steps = 64", "rollout_steps = 1048576");
+                edit(
+                    &dir.join("tiny.toml"),
+                    "rollout_steps = 64",
+                    "rollout_steps = 1048576",
+                );
                 edit(
                     &dir.join("tiny.toml"),
                     "total_steps = 1024",
@@ -363,7 +367,7 @@ fn cases() -> Vec<Case> {
                 let run = run_copy(dir);
                 args(&["eval", &run, "--split", "train"])
             },
-            expected: &["--split", "--params"],
+            expected: &["--split", "cannot be used with"],
         },
         Case {
             name: "more evaluation episodes than memory",
@@ -401,7 +405,14 @@ fn cases() -> Vec<Case> {
             name: "simulate into a file",
             setup: |dir| {
                 std::fs::write(dir.join("out"), "").unwrap();
-                args(&["simulate", &trajectory(), "--out", "out", "--seconds", "0.01"])
+                args(&[
+                    "simulate",
+                    &trajectory(),
+                    "--out",
+                    "out",
+                    "--seconds",
+                    "0.01",
+                ])
             },
             expected: &["--out out", "is a file"],
         },

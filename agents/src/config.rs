@@ -348,9 +348,12 @@ impl TrainConfig {
             ),
             (
                 memory.activations,
-                "ppo.minibatches",
-                ppo.minibatches.to_string(),
-                "activations of one minibatch (more minibatches make it smaller)",
+                "run.num_envs x ppo.rollout_steps / ppo.minibatches",
+                format!(
+                    "{} x {} / {}",
+                    run.num_envs, ppo.rollout_steps, ppo.minibatches
+                ),
+                "activations of one minibatch",
             ),
         ];
         let (bytes, key, value, what) = parts
@@ -396,8 +399,9 @@ impl TrainingMemory {
 /// (cgroup) limit when that is lower, as `sysinfo` reads them; 16 GiB when neither can be read.
 pub fn memory_budget_bytes() -> u64 {
     use sysinfo::{MemoryRefreshKind, RefreshKind, System};
-    let system =
-        System::new_with_specifics(RefreshKind::nothing().with_memory(MemoryRefreshKind::everything()));
+    let system = System::new_with_specifics(
+        RefreshKind::nothing().with_memory(MemoryRefreshKind::everything()),
+    );
     let total = system.total_memory();
     let limit = system
         .cgroup_limits()
@@ -585,8 +589,14 @@ epsilon = 1e-8
                     .replace("total_steps = 2048", "total_steps = 1099511627776");
             }
             let err = parse(&text).unwrap_err().to_string();
-            assert!(err.contains(key) && err.contains("would need about"), "{err}");
-            assert!(err.contains("iB") && err.contains("of this machine"), "{err}");
+            assert!(
+                err.contains(key) && err.contains("would need about"),
+                "{err}"
+            );
+            assert!(
+                err.contains("iB") && err.contains("of this machine"),
+                "{err}"
+            );
         }
         let config = parse(CARTPOLE_TEST).unwrap();
         let memory = config.memory_estimate(4, 1, 2);
@@ -600,7 +610,10 @@ epsilon = 1e-8
         assert_eq!(format_bytes(512.0), "512.0 B");
         assert_eq!(format_bytes(1.5 * 1024.0 * 1024.0), "1.5 MiB");
         assert_eq!(format_bytes(16.0 * 1024f64.powi(4)), "16.0 TiB");
-        assert!(check_memory("--x 1", 1e30).unwrap_err().to_string().contains("--x 1"));
+        assert!(check_memory("--x 1", 1e30)
+            .unwrap_err()
+            .to_string()
+            .contains("--x 1"));
         assert!(check_memory("--x 1", 1.0).is_ok());
     }
 

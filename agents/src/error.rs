@@ -42,7 +42,9 @@ pub enum AgentError {
         reason: String,
     },
     /// A size from the input would need more memory than the machine has.
-    #[error("{what}: would need about {needed} of memory, more than the {available} of this machine")]
+    #[error(
+        "{what}: would need about {needed} of memory, more than the {available} of this machine"
+    )]
     Memory {
         /// The option or key and its value, e.g. `--episodes 1000000000`.
         what: String,

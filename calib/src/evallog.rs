@@ -260,7 +260,8 @@ mod tests {
         log.append(&[row(0, 0, -3.25), row(0, 1, f64::INFINITY)])
             .unwrap();
         log.append(&[row(1, 0, 1e-17)]).unwrap();
-        let (_, back) = EvaluationLog::open(&path, &["k_tri_e", "mu_con"], &["cd", "mse"], &WIDE).unwrap();
+        let (_, back) =
+            EvaluationLog::open(&path, &["k_tri_e", "mu_con"], &["cd", "mse"], &WIDE).unwrap();
         assert_eq!(back.len(), 3);
         assert_eq!(back[0].params, row(0, 0, 0.0).params);
         assert_eq!(back[1].objective, f64::INFINITY);
@@ -293,10 +294,26 @@ mod tests {
         let path = dir.path().join("evaluations.csv");
         let header = "batch,candidate,a,objective\n";
         let cases = [
-            ("0,0,0.5,1\n0,1,2.5,1\n", "line 3", "outside its bounds [0, 1]"),
-            ("0,0,0.5,1\n0,0,0.5,1\n", "line 3", "batch 0 candidate 0 is out of sequence"),
-            ("0,0,0.5,1\n1,0,0.5,1\n1,0,0.5,1\n", "line 4", "out of sequence"),
-            ("0,0,0.5,1\n2,0,0.5,1\n", "line 3", "expected batch 0 candidate 1 or batch 1"),
+            (
+                "0,0,0.5,1\n0,1,2.5,1\n",
+                "line 3",
+                "outside its bounds [0, 1]",
+            ),
+            (
+                "0,0,0.5,1\n0,0,0.5,1\n",
+                "line 3",
+                "batch 0 candidate 0 is out of sequence",
+            ),
+            (
+                "0,0,0.5,1\n1,0,0.5,1\n1,0,0.5,1\n",
+                "line 4",
+                "out of sequence",
+            ),
+            (
+                "0,0,0.5,1\n2,0,0.5,1\n",
+                "line 3",
+                "expected batch 0 candidate 1 or batch 1",
+            ),
             ("1,0,0.5,1\n", "line 2", "expected batch 0 candidate 0"),
         ];
         for (rows, line, message) in cases {
@@ -306,8 +323,16 @@ mod tests {
                 .to_string();
             assert!(err.contains(line) && err.contains(message), "{err}");
         }
-        std::fs::write(&path, format!("{header}0,0,1.0000000000000002,1\n0,1,0,1\n1,0,1,1\n")).unwrap();
+        std::fs::write(
+            &path,
+            format!("{header}0,0,1.0000000000000002,1\n0,1,0,1\n1,0,1,1\n"),
+        )
+        .unwrap();
         let (_, rows) = EvaluationLog::open(&path, &["a"], &[], &[(0.0, 1.0)]).unwrap();
-        assert_eq!(rows.len(), 3, "rounding at a bound and a new batch are accepted");
+        assert_eq!(
+            rows.len(),
+            3,
+            "rounding at a bound and a new batch are accepted"
+        );
     }
 }

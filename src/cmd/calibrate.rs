@@ -124,7 +124,10 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             let path = out_dir.join(file);
             if path.exists() {
                 std::fs::remove_file(&path).map_err(|err| {
-                    input_error(format!("{}: cannot remove (--fresh): {err}", path.display()))
+                    input_error(format!(
+                        "{}: cannot remove (--fresh): {err}",
+                        path.display()
+                    ))
                 })?;
             }
         }

@@ -29,20 +29,21 @@ pub struct EvalArgs {
     /// Simulator parameters (TOML) to evaluate against recorded trajectories.
     #[arg(long)]
     pub params: Option<PathBuf>,
-    /// Which trajectories of the dataset to evaluate on (with --params).
-    #[arg(long, default_value = "test", requires = "params")]
-    pub split: String,
-    /// Dataset folder (manifest.toml + one folder per trajectory; with --params).
-    #[arg(long, default_value = "data/deformable-sim-real", requires = "params")]
-    pub data: PathBuf,
+    /// Which trajectories of the dataset to evaluate on (with --params) [default: test].
+    #[arg(long, requires = "params", conflicts_with_all = ["run", "policy"])]
+    pub split: Option<String>,
+    /// Dataset folder (manifest.toml + one folder per trajectory; with --params)
+    /// [default: data/deformable-sim-real].
+    #[arg(long, requires = "params", conflicts_with_all = ["run", "policy"])]
+    pub data: Option<PathBuf>,
     /// Also run the grid-size sweep (the paper's Table 2; with --params).
-    #[arg(long, requires = "params")]
+    #[arg(long, requires = "params", conflicts_with_all = ["run", "policy"])]
     pub sweep_grid: bool,
     /// Sensitivity: scale every parameter by these percentages, e.g. 10,20,30 (with --params).
-    #[arg(long, value_delimiter = ',', requires = "params")]
+    #[arg(long, value_delimiter = ',', requires = "params", conflicts_with_all = ["run", "policy"])]
     pub perturb: Vec<f64>,
     /// Where to write pictures and the JSON summary (with --params).
-    #[arg(long, requires = "params")]
+    #[arg(long, requires = "params", conflicts_with_all = ["run", "policy"])]
     pub out: Option<PathBuf>,
     /// Print a JSON summary on standard output.
     #[arg(long)]

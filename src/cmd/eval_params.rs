@@ -88,7 +88,13 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
         .as_ref()
         .ok_or_else(|| input_error("--params: expected a scene TOML file"))?;
     let scene = SceneConfig::load(params_path).map_err(input_error)?;
-    let splits: Vec<Split> = match args.split.as_str() {
+    // clap's `requires` does not apply to options with a default, so the defaults are set here.
+    let split = args.split.as_deref().unwrap_or("test");
+    let data = args
+        .data
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("data/deformable-sim-real"));
+    let splits: Vec<Split> = match split {
         "train" => vec![Split::Train],
         "test" => vec![Split::Test],
         "all" => vec![Split::Train, Split::Test],
@@ -114,7 +120,7 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
             "--perturb {p}: expected percentages > -100"
         )));
     }
-    let dataset = Dataset::open(&args.data).map_err(input_error)?;
+    let dataset = Dataset::open(&data).map_err(input_error)?;
     let mut selected: Vec<(Split, Trajectory)> = Vec::new();
     for &split in &splits {
         for id in dataset.ids(Some(split)) {
@@ -123,9 +129,8 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
     }
     if selected.is_empty() {
         return Err(input_error(format!(
-            "{}: no trajectory in split {}",
-            args.data.display(),
-            args.split
+            "{}: no trajectory in split {split}",
+            data.display(),
         )));
     }
     let out = args.out.clone().unwrap_or_else(|| {

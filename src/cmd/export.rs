@@ -363,14 +363,13 @@ pub fn eval_onnx_policy(
         evaluation_memory_bytes(episodes, policy.obs_dim(), 1024),
     )
     .map_err(input_error)?;
-    let stats = run_episodes_keeping(&env_id, episodes, seed, 0, |obs, n| policy.act(obs, n)).map_err(
-        |e| match e {
+    let stats = run_episodes_keeping(&env_id, episodes, seed, 0, |obs, n| policy.act(obs, n))
+        .map_err(|e| match e {
             ExportError::Env(_) | ExportError::ObsShape { .. } => {
                 input_error(format!("{}: {e}", path.display()))
             }
             other => other.into(),
-        },
-    )?;
+        })?;
     Ok(OnnxEvalSummary {
         policy: path.to_path_buf(),
         env_id,

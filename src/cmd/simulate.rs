@@ -232,7 +232,9 @@ fn scene_config(args: &SimulateArgs) -> anyhow::Result<(SceneConfig, String)> {
         (None, Some(p)) => {
             let side = |base: usize, per: usize| p.checked_mul(per)?.checked_add(base);
             let grid = side(6, 5).zip(side(7, 6)).ok_or_else(|| {
-                input_error(format!("--between {p}: expected a small number of particles"))
+                input_error(format!(
+                    "--between {p}: expected a small number of particles"
+                ))
             })?;
             Some(([grid.0, grid.1], "--between"))
         }
@@ -741,6 +743,29 @@ mod tests {
             .collect();
         assert_eq!(png, [0, 48, 72]);
         assert!(stops.windows(2).all(|w| w[0].substep < w[1].substep));
+    }
+
+    #[test]
+    fn leftover_temporary_files_are_removed_and_outputs_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        std::fs::create_dir_all(out.join("frames")).unwrap();
+        let leftovers = [
+            ".summary.json.AbC123",
+            ".replay.gif.4242.0.tmp",
+            "frames/.000_t-2.000s.png.4242.3.tmp.png",
+        ];
+        let kept = ["metrics.csv", "frames/000_t-2.000s.png", ".hidden-notes"];
+        for name in leftovers.iter().chain(&kept) {
+            std::fs::write(out.join(name), "x").unwrap();
+        }
+        prepare_output(&out).unwrap();
+        for name in leftovers {
+            assert!(!out.join(name).exists(), "{name}");
+        }
+        for name in kept {
+            assert!(out.join(name).exists(), "{name}");
+        }
     }
 
     #[test]

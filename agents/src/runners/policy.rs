@@ -8,8 +8,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::Serialize;
 
 use super::Trainer;
-use crate::export::graph::argmax;
 use crate::config::check_memory;
+use crate::export::graph::argmax;
 use crate::export::runtime::run_episodes_keeping;
 use crate::export::{ActionHead, ActionTransform, ObsNormaliser, PolicyGraph, PolicyMeta};
 use crate::modules::ActorCritic;
@@ -150,9 +150,10 @@ pub fn evaluate_run(run_dir: &Path, episodes: usize, seed: u64) -> Result<EvalSu
         &format!("--episodes {episodes}"),
         evaluation_memory_bytes(episodes, policy.spec.observation.dim(), widths),
     )?;
-    let stats = run_episodes_keeping::<AgentError>(&policy.spec.id, episodes, seed, 0, |obs, n| {
-        Ok(policy.act(obs, n))
-    })?;
+    let stats =
+        run_episodes_keeping::<AgentError>(&policy.spec.id, episodes, seed, 0, |obs, n| {
+            Ok(policy.act(obs, n))
+        })?;
     let returns = stats.returns.iter().map(|&r| r as f64);
     Ok(EvalSummary {
         env_id: policy.spec.id.clone(),
