@@ -132,11 +132,9 @@ mod tests {
         let start: Vec<[f64; 3]> = (0..3).map(|e| sim.tool_state(e).position).collect();
         sim.step(3072); // 0.1 s: no rest period, the recorded motion has begun
         assert!(sim.health_events().is_empty(), "{:?}", sim.health_events());
-        for env in 0..3 {
+        for (env, from) in start.iter().enumerate() {
             let now = sim.tool_state(env).position;
-            let moved = (0..3)
-                .map(|k| (now[k] - start[env][k]).powi(2))
-                .sum::<f64>();
+            let moved = (0..3).map(|k| (now[k] - from[k]).powi(2)).sum::<f64>();
             assert!(moved.sqrt() > 1e-3, "env {env} tool moved {}", moved.sqrt());
         }
         // Environments 0 and 2 replay the same recording with different masses.
