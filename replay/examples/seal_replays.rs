@@ -10,8 +10,8 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use rlpkg_replay::Target;
 use rlpkg_mocap::dataset::Dataset;
+use rlpkg_replay::Target;
 use rlpkg_sim::{CupLoad, EnvSpec, Model, SceneConfig, Simulator, ToolSample, ToolTrajectory};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

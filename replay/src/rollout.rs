@@ -294,6 +294,8 @@ mod tests {
         // (target-major layout, finished environments retired) must give each pair's result.
         let mut scene = load_scene("reference", Some(0), None).unwrap();
         scene.cups.rest_time_s = 0.1;
+        // The disc slips through the 6 x 7 sheet; these tests are about the batching and the fit.
+        scene.health.object_outside = false;
         let model = Arc::new(Model::new(&scene).unwrap());
         let targets = vec![
             Target::new(&recorded("HHLHL"), Some(0.15), true).unwrap(),
@@ -326,6 +328,8 @@ mod tests {
         // with that mass scale, and differently from the lighter disc.
         let mut scene = load_scene("reference", Some(0), None).unwrap();
         scene.cups.rest_time_s = 0.1;
+        // The disc slips through the 6 x 7 sheet; these tests are about the batching and the fit.
+        scene.health.object_outside = false;
         let target = Target::new(&recorded("HHLHL"), Some(0.3), false).unwrap();
         let run = |scene: &SceneConfig, candidate: Candidate| {
             let model = Arc::new(Model::new(scene).unwrap());

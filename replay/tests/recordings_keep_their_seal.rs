@@ -7,8 +7,8 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use rlpkg_replay::Target;
 use rlpkg_mocap::dataset::Dataset;
+use rlpkg_replay::Target;
 use rlpkg_sim::{CupLoad, EnvSpec, Model, SceneConfig, Simulator};
 
 #[test]

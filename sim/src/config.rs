@@ -292,6 +292,15 @@ pub struct HealthConfig {
     pub max_speed_m_s: f32,
     /// A particle or the disc further than this from its start is exploding (m).
     pub max_displacement_m: f32,
+    /// Freeze an environment whose disc left the package ([`crate::HealthReason::ObjectOutside`]).
+    /// On by default; tests of machinery that do not care about the physics of very coarse grids
+    /// (where the disc slips through the sheet) turn it off.
+    #[serde(default = "yes")]
+    pub object_outside: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// The suction seal between each cup and the film: when a cup holds, peels or slides off.

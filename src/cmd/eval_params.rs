@@ -12,7 +12,6 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use rlpkg_mocap::{Dataset, Split, Trajectory};
 use rlpkg_replay::evaluate::{perturbed, real_time_factor, SiteErrors};

@@ -47,7 +47,7 @@ impl<const W: usize> Block<W> {
                 }
             }
         }
-        for l in 0..W {
+        for l in (0..W).filter(|_| k.object_outside) {
             let d = get3(&self.disc.com, l);
             let m = k.object_outside_margin;
             let outside = (0..3).any(|c| d[c] < lo[l][c] - m || d[c] > hi[l][c] + m);

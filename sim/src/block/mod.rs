@@ -102,6 +102,7 @@ pub(crate) struct StepConstants {
     pub(crate) seal: SealConstants,
     /// Reach of the disc's centre beyond the package's particles before it counts as outside (m).
     pub(crate) object_outside_margin: f32,
+    pub(crate) object_outside: bool,
 }
 
 impl StepConstants {
@@ -128,6 +129,7 @@ impl StepConstants {
             contact_refresh: c.disc.contact_refresh_substeps as u64,
             seal: SealConstants::new(model),
             object_outside_margin: model.particle_radius + c.disc.radius_m,
+            object_outside: c.health.object_outside,
         }
     }
 }
