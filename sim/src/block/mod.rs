@@ -607,13 +607,17 @@ impl<const W: usize> Block<W> {
         let (springs, f, f2) = (&self.springs[..], &mut self.f[..], &mut self.f2[..]);
         let spring_force = &mut self.spring_force[..];
         let (cp, cn) = (&mut self.contact_point[..], &mut self.contact_normal[..]);
-        let mut membrane = move || membrane_forces(model, x, v, springs, spring_force, &p, f);
-        let mut others =
-            move || contact_and_bending_forces(model, k, refresh, x, v, &disc, &p, cp, cn, f2);
-        let ((), (disc_f, disc_t)) = if parallel {
-            rayon::join(membrane, others)
+        // One environment: the two halves on two threads, each compiled for AVX2 (closures run
+        // by rayon leave `advance_avx2`'s code). Otherwise direct calls, inlined into it.
+        let (disc_f, disc_t) = if parallel {
+            let membrane = move || membrane_forces_simd(model, x, v, springs, spring_force, &p, f);
+            let others = move || {
+                contact_and_bending_forces_simd(model, k, refresh, x, v, &disc, &p, cp, cn, f2)
+            };
+            rayon::join(membrane, others).1
         } else {
-            (membrane(), others())
+            membrane_forces(model, x, v, springs, spring_force, &p, f);
+            contact_and_bending_forces(model, k, refresh, x, v, &disc, &p, cp, cn, f2)
         };
 
         // 7. Integrate the disc (Warp `integrate_bodies`).
@@ -691,6 +695,104 @@ pub(crate) fn advance_block<const W: usize>(
         }
     }
     block.advance(model, k, substeps, parallel);
+}
+
+/// [`membrane_forces`] compiled for AVX2 when the CPU has it.
+fn membrane_forces_simd<const W: usize>(
+    model: &Model,
+    x: &[V3<L<W>>],
+    v: &[V3<L<W>>],
+    springs: &[LaneSpring<W>],
+    spring_force: &mut [V3<L<W>>],
+    p: &LaneParams<W>,
+    f: &mut [V3<L<W>>],
+) {
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn avx2<const W: usize>(
+        model: &Model,
+        x: &[V3<L<W>>],
+        v: &[V3<L<W>>],
+        springs: &[LaneSpring<W>],
+        spring_force: &mut [V3<L<W>>],
+        p: &LaneParams<W>,
+        f: &mut [V3<L<W>>],
+    ) {
+        membrane_forces(model, x, v, springs, spring_force, p, f)
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe { avx2(model, x, v, springs, spring_force, p, f) };
+        }
+    }
+    membrane_forces(model, x, v, springs, spring_force, p, f)
+}
+
+/// [`contact_and_bending_forces`] compiled for AVX2 when the CPU has it.
+#[allow(clippy::too_many_arguments)]
+fn contact_and_bending_forces_simd<const W: usize>(
+    model: &Model,
+    k: &StepConstants,
+    refresh: Option<L<W>>,
+    x: &[V3<L<W>>],
+    v: &[V3<L<W>>],
+    disc: &LaneDisc<W>,
+    p: &LaneParams<W>,
+    contact_point: &mut [V3<L<W>>],
+    contact_normal: &mut [V3<L<W>>],
+    f: &mut [V3<L<W>>],
+) -> (V3<L<W>>, V3<L<W>>) {
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn avx2<const W: usize>(
+        model: &Model,
+        k: &StepConstants,
+        refresh: Option<L<W>>,
+        x: &[V3<L<W>>],
+        v: &[V3<L<W>>],
+        disc: &LaneDisc<W>,
+        p: &LaneParams<W>,
+        cp: &mut [V3<L<W>>],
+        cn: &mut [V3<L<W>>],
+        f: &mut [V3<L<W>>],
+    ) -> (V3<L<W>>, V3<L<W>>) {
+        contact_and_bending_forces(model, k, refresh, x, v, disc, p, cp, cn, f)
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe {
+                avx2(
+                    model,
+                    k,
+                    refresh,
+                    x,
+                    v,
+                    disc,
+                    p,
+                    contact_point,
+                    contact_normal,
+                    f,
+                )
+            };
+        }
+    }
+    contact_and_bending_forces(
+        model,
+        k,
+        refresh,
+        x,
+        v,
+        disc,
+        p,
+        contact_point,
+        contact_normal,
+        f,
+    )
 }
 
 #[cfg(target_arch = "x86_64")]
