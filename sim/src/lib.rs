@@ -85,6 +85,7 @@ pub mod config;
 pub mod embed;
 pub mod error;
 pub mod forces;
+pub mod implicit;
 pub mod math;
 pub mod model;
 pub mod randomize;
@@ -95,8 +96,10 @@ pub mod trajectory;
 
 #[cfg(test)]
 mod control_tests;
+#[cfg(test)]
+mod descent_tests;
 
-pub use config::{DriveMode, InertiaModel, Params, SceneConfig, SealConfig, ToolLimits};
+pub use config::{DriveMode, InertiaModel, Params, SceneConfig, SealConfig, Solver, ToolLimits};
 pub use embed::{EmbeddedPoint, SurfaceEmbedding};
 pub use error::SimError;
 pub use model::{DiscMass, Model};

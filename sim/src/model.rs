@@ -89,6 +89,62 @@ pub struct Model {
     pub cup_particle_mass: f32,
     /// The disc's shape.
     pub disc: DiscShape,
+    /// Elements around each package vertex (for the block-descent integrator).
+    pub adjacency: VertexAdjacency,
+}
+
+/// For each package vertex, the package triangles and bending edges it belongs to, with its
+/// place in them (compressed rows: vertex `i`'s entries are `starts[i]..starts[i + 1]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct VertexAdjacency {
+    /// Row starts into `triangles`, one per package vertex plus one.
+    pub triangle_starts: Vec<u32>,
+    /// (index into `Model::package_triangles`, corner 0-2).
+    pub triangles: Vec<(u32, u8)>,
+    /// Row starts into `edges`, one per package vertex plus one.
+    pub edge_starts: Vec<u32>,
+    /// (index into `Model::package_edges`, role 0-3: opposite vertices, then the hinge).
+    pub edges: Vec<(u32, u8)>,
+}
+
+impl VertexAdjacency {
+    fn new(num_vertices: usize, triangles: &[Triangle], edges: &[BendingEdge]) -> Self {
+        fn rows<const N: usize>(n: usize, elements: &[[u32; N]]) -> (Vec<u32>, Vec<(u32, u8)>) {
+            let mut lists = vec![Vec::new(); n];
+            for (e, idx) in elements.iter().enumerate() {
+                for (place, &v) in idx.iter().enumerate() {
+                    lists[v as usize].push((e as u32, place as u8));
+                }
+            }
+            let mut starts = vec![0u32];
+            let mut flat = Vec::new();
+            for list in lists {
+                flat.extend(list);
+                starts.push(flat.len() as u32);
+            }
+            (starts, flat)
+        }
+        let tri_idx: Vec<[u32; 3]> = triangles.iter().map(|t| t.idx).collect();
+        let edge_idx: Vec<[u32; 4]> = edges.iter().map(|e| e.idx).collect();
+        let (triangle_starts, triangles) = rows(num_vertices, &tri_idx);
+        let (edge_starts, edges) = rows(num_vertices, &edge_idx);
+        VertexAdjacency {
+            triangle_starts,
+            triangles,
+            edge_starts,
+            edges,
+        }
+    }
+
+    /// Triangles around vertex `i`.
+    pub fn triangles_of(&self, i: usize) -> &[(u32, u8)] {
+        &self.triangles[self.triangle_starts[i] as usize..self.triangle_starts[i + 1] as usize]
+    }
+
+    /// Bending edges around vertex `i`.
+    pub fn edges_of(&self, i: usize) -> &[(u32, u8)] {
+        &self.edges[self.edge_starts[i] as usize..self.edge_starts[i + 1] as usize]
+    }
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -290,7 +346,9 @@ impl Model {
                 })
             })
             .collect();
+        let adjacency = VertexAdjacency::new(num_package, &package_triangles, &package_edges);
         Ok(Model {
+            adjacency,
             config: config.clone(),
             grid: [rows, cols],
             cell: [cell_x as f32, cell_y as f32],

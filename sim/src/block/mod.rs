@@ -17,14 +17,16 @@
 //! never by adding a zero.
 
 mod assembly;
+mod descent;
 mod health;
 mod seal;
 mod snapshot;
 
 use std::sync::Arc;
 
-use crate::config::DriveMode;
+use crate::config::{DriveMode, Solver};
 use crate::forces::ContactMaterial;
+use crate::implicit::Sym3;
 use crate::math::{Lanes, Quat, Real, V3};
 use crate::model::Model;
 use crate::state::{EnvSpec, HealthEvent, SealEvent};
@@ -100,6 +102,8 @@ pub(crate) struct StepConstants {
     pub(crate) max_particle_speed: f32,
     pub(crate) contact_refresh: u64,
     pub(crate) seal: SealConstants,
+    pub(crate) solver: Solver,
+    pub(crate) iterations: u32,
     /// Reach of the disc's centre beyond the package's particles before it counts as outside (m).
     pub(crate) object_outside_margin: f32,
     pub(crate) object_outside: bool,
@@ -128,6 +132,8 @@ impl StepConstants {
             max_particle_speed: c.integrator.max_particle_speed_m_s,
             contact_refresh: c.disc.contact_refresh_substeps as u64,
             seal: SealConstants::new(model),
+            solver: c.integrator.solver,
+            iterations: c.integrator.iterations,
             object_outside_margin: model.particle_radius + c.disc.radius_m,
             object_outside: c.health.object_outside,
         }
@@ -167,6 +173,20 @@ pub(crate) struct Block<const W: usize> {
     pub(crate) active: L<W>,
     pub(crate) events: Vec<HealthEvent>,
     pub(crate) seal_events: Vec<SealEvent>,
+    /// Block descent only (empty otherwise): package positions at the start of the substep and
+    /// their inertial predictions.
+    x_start: Vec<V3<L<W>>>,
+    inertia_target: Vec<V3<L<W>>>,
+    /// Block descent only: attachment springs per package vertex (rows of `[spring; W]`, one
+    /// spring index per lane or `u32::MAX`), and the particles near the disc this substep.
+    spring_slot_starts: Vec<u32>,
+    spring_slots: Vec<[u32; W]>,
+    disc_candidates: Vec<u32>,
+    /// Block descent only: whether each package particle is among `disc_candidates`.
+    near_disc: Vec<bool>,
+    /// Block descent only: bending force and stiffness per package vertex at a sweep's start.
+    bend_force: Vec<V3<L<W>>>,
+    bend_stiffness: Vec<Sym3<L<W>>>,
 }
 
 #[inline(always)]
@@ -293,7 +313,21 @@ impl<const W: usize> Block<W> {
             active: one,
             events: Vec::new(),
             seal_events: Vec::new(),
+            x_start: Vec::new(),
+            inertia_target: Vec::new(),
+            spring_slot_starts: Vec::new(),
+            spring_slots: Vec::new(),
+            disc_candidates: Vec::new(),
+            near_disc: Vec::new(),
+            bend_force: Vec::new(),
+            bend_stiffness: Vec::new(),
         };
+        if model.config.integrator.solver == Solver::BlockDescent {
+            block.x_start = vec![zero3; model.num_package];
+            block.inertia_target = vec![zero3; model.num_package];
+            block.bend_force = vec![zero3; model.num_package];
+            block.bend_stiffness = vec![Sym3::zero(); model.num_package];
+        }
         for (l, &e) in envs.iter().enumerate() {
             block.init_lane(l, model, &specs[e]);
         }
@@ -431,12 +465,16 @@ impl<const W: usize> Block<W> {
             &self.x0,
             &self.contact_point,
             &self.contact_normal,
+            &self.x_start,
+            &self.inertia_target,
+            &self.bend_force,
         ];
         particle_arrays
             .iter()
             .map(|a| a.capacity() * per_particle)
             .sum::<usize>()
             + (self.cup_offsets.capacity() + self.spring_force.capacity()) * per_particle
+            + self.bend_stiffness.capacity() * std::mem::size_of::<Sym3<L<W>>>()
             + self.springs.capacity() * std::mem::size_of::<LaneSpring<W>>()
             + self.cups.capacity() * std::mem::size_of::<LaneCup<W>>()
             + std::mem::size_of::<Self>()
@@ -546,7 +584,10 @@ impl<const W: usize> Block<W> {
             if (0..W).all(|l| !self.real[l] || self.active.0[l] < 0.5) {
                 return;
             }
-            self.substep(model, k, parallel);
+            match k.solver {
+                Solver::SemiImplicitEuler => self.substep(model, k, parallel),
+                Solver::BlockDescent => self.substep_descent(model, k),
+            }
             let mut due = [false; W];
             for l in 0..W {
                 if self.active.0[l] > 0.5 {
