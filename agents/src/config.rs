@@ -19,6 +19,13 @@ pub struct TrainConfig {
     pub policy: PolicyConfig,
     /// Observation and reward normalisation.
     pub normalization: NormalizationConfig,
+    /// Settings of the `Transport-v0` environment (the `[transport]` table, see
+    /// `rlpkg_env::TransportConfig`); absent for the classic-control tasks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transport: Option<toml::Table>,
+    /// The file the configuration was read from (named in the environment's messages).
+    #[serde(skip)]
+    pub source: String,
 }
 
 /// Environment, seed, run length and checkpointing.
@@ -156,10 +163,12 @@ impl TrainConfig {
 
     /// Parses and validates configuration text; `path` is only used in messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self, AgentError> {
-        let config: TrainConfig = toml::from_str(text).map_err(|e| AgentError::ConfigParse {
-            path: path.into(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
+        let mut config: TrainConfig =
+            toml::from_str(text).map_err(|e| AgentError::ConfigParse {
+                path: path.into(),
+                message: e.to_string().trim_end().to_string(),
+            })?;
+        config.source = path.display().to_string();
         config.validate(path)?;
         Ok(config)
     }
@@ -225,9 +234,29 @@ impl TrainConfig {
             })
         };
         let (run, ppo, policy, norm) = (&self.run, &self.ppo, &self.policy, &self.normalization);
-        if !rlpkg_env::KNOWN_IDS.contains(&run.env.as_str()) {
-            let known = format!("one of {}", rlpkg_env::KNOWN_IDS.join(", "));
+        if !rlpkg_env::ALL_IDS.contains(&run.env.as_str()) {
+            let known = format!("one of {}", rlpkg_env::ALL_IDS.join(", "));
             return fail("run.env", format!("{:?}", run.env), &known);
+        }
+        match (&self.transport, run.env == rlpkg_env::transport::ID) {
+            (Some(table), true) => {
+                rlpkg_env::TransportConfig::from_table(table, &path.display().to_string())?;
+            }
+            (None, true) => {
+                return fail(
+                    "transport",
+                    "missing".into(),
+                    "a [transport] table for run.env = \"Transport-v0\"",
+                )
+            }
+            (Some(_), false) => {
+                return fail(
+                    "transport",
+                    "a table".into(),
+                    &format!("no [transport] table for run.env = {:?}", run.env),
+                )
+            }
+            (None, false) => {}
         }
         let counts = [
             ("run.num_envs", run.num_envs, 1, 1 << 20),
@@ -315,7 +344,11 @@ impl TrainConfig {
     /// Compares [`TrainConfig::memory_estimate`] with the memory of the machine and names the
     /// part that does not fit.
     fn check_memory(&self, path: &Path) -> Result<(), AgentError> {
-        let spec = rlpkg_env::make(&self.run.env, 1)?.spec().clone();
+        let spec = rlpkg_env::spec_with(
+            &self.run.env,
+            self.transport.as_ref(),
+            &path.display().to_string(),
+        )?;
         let actor_out = match spec.action.kind {
             rlpkg_env::SpaceKind::Discrete { n } => n,
             rlpkg_env::SpaceKind::Continuous => spec.action.dim(),
@@ -621,5 +654,42 @@ epsilon = 1e-8
     fn config_hash_changes_with_text() {
         assert_ne!(config_hash("a"), config_hash("b"));
         assert_eq!(config_hash("abc").len(), 16);
+    }
+
+    /// `configs/transport.toml` with the scene and recordings found from this crate's folder.
+    pub(crate) fn transport_config_text() -> String {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+        std::fs::read_to_string(format!("{root}/configs/transport.toml"))
+            .unwrap()
+            .replace(
+                "scene = \"configs/physical.toml\"",
+                &format!("scene = \"{root}/configs/physical.toml\""),
+            )
+            .replace(
+                "recordings = \"data/deformable-sim-real\"",
+                &format!("recordings = \"{root}/data/deformable-sim-real\""),
+            )
+    }
+
+    #[test]
+    fn the_shipped_transport_config_parses_and_bad_transport_keys_are_named() {
+        let text = transport_config_text();
+        let config = parse(&text).unwrap();
+        assert_eq!(config.run.env, "Transport-v0");
+        assert!(config.transport.is_some());
+        let err = parse(&text.replace("control_hz = 20.0", "control_hz = 50.0"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cfg.toml") && err.contains("transport.control_hz"),
+            "{err}"
+        );
+        // The classic-control tasks take no [transport] table; the transport task needs one.
+        let stray = format!("{CARTPOLE_TEST}\n[transport]\nscene = \"physical\"\n");
+        let err = parse(&stray).unwrap_err().to_string();
+        assert!(err.contains("no [transport] table"), "{err}");
+        let missing = text[..text.find("\n[transport]\n").unwrap()].to_string();
+        let err = parse(&missing).unwrap_err().to_string();
+        assert!(err.contains("[transport]"), "{err}");
     }
 }

@@ -118,6 +118,13 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     let trainer = Trainer::resume(run).map_err(agent_error)?;
     let burn = TrainedPolicy::from_trainer(&trainer);
     let mut graph = burn.policy_graph();
+    if args.with_value && graph.critic.is_none() {
+        return Err(input_error(format!(
+            "{}: --with-value: this run's critic reads privileged simulator observations that a \
+             real cell does not measure, so only the actor is exported",
+            run.display()
+        )));
+    }
     if !args.with_value {
         graph.critic = None;
     }

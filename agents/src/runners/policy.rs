@@ -74,7 +74,9 @@ impl TrainedPolicy {
         }
     }
 
-    /// The plain-number description the ONNX exporter writes (critic included).
+    /// The plain-number description the ONNX exporter writes (the critic included when it reads
+    /// the actor's observations; a critic with privileged observations is left out, since the
+    /// exported graph has one input, what a real cell measures).
     pub fn policy_graph(&self) -> PolicyGraph {
         let actor = self.model.actor_layers();
         let head = match &self.transform {
@@ -88,7 +90,7 @@ impl TrainedPolicy {
         PolicyGraph {
             normaliser: self.normaliser.clone(),
             actor,
-            critic: Some(self.model.critic_layers()),
+            critic: (!self.spec.is_asymmetric()).then(|| self.model.critic_layers()),
             activation: self.model.activation(),
             head,
             meta: PolicyMeta::from_spec(&self.spec, env!("CARGO_PKG_VERSION"), &self.config_hash),
