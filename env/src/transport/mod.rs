@@ -209,6 +209,10 @@ struct Lane {
     steps: usize,
 }
 
+/// The reference reaches the place pose when it is this close (m): braking to the end of the
+/// path would otherwise approach it forever.
+const PATH_END_SNAP_M: f64 = 1e-3;
+
 /// Real numbers per lane in [`Lane::to_reals`].
 const LANE_REALS: usize = 23;
 
@@ -335,8 +339,13 @@ pub fn load_scene(config: &TransportConfig, source: &str) -> Result<SceneConfig,
     Ok(scene)
 }
 
-/// The recorded paths `config.paths` names, from `config.recordings`.
-pub fn load_paths(config: &TransportConfig, source: &str) -> Result<Vec<TransportPath>, EnvError> {
+/// The recorded paths `config.paths` names, from `config.recordings`, with the pick set-up the
+/// scene's replay rule gives (`hold_disc`: the scene's `disc.hold_at_recorded_start`).
+pub fn load_paths(
+    config: &TransportConfig,
+    hold_disc: bool,
+    source: &str,
+) -> Result<Vec<TransportPath>, EnvError> {
     let data_error = |message: String| EnvError::ConfigParse {
         file: source.to_string(),
         message,
@@ -350,7 +359,7 @@ pub fn load_paths(config: &TransportConfig, source: &str) -> Result<Vec<Transpor
             let trajectory = dataset
                 .load(id)
                 .map_err(|e| data_error(format!("transport.paths: {e}")))?;
-            let target = rlpkg_replay::Target::new(&trajectory, Some(0.0), true)
+            let target = rlpkg_replay::Target::new(&trajectory, Some(0.0), hold_disc)
                 .map_err(|e| data_error(format!("transport.paths: {e}")))?;
             TransportPath::from_recording(&trajectory, target.placement)
                 .map_err(|e| data_error(format!("transport.paths: {e}")))
@@ -473,7 +482,7 @@ impl Transport {
     /// in messages). Call [`VecEnv::reset`] before stepping: it settles the package variants.
     pub fn new(config: TransportConfig, num_envs: usize, source: &str) -> Result<Self, EnvError> {
         let scene = load_scene(&config, source)?;
-        let paths = load_paths(&config, source)?;
+        let paths = load_paths(&config, scene.disc.hold_at_recorded_start, source)?;
         Self::with_scene(config, scene, paths, num_envs)
     }
 
@@ -568,6 +577,24 @@ impl Transport {
             object_mass_kg: spec.object_mass_kg,
             package_yaw_rad: spec.placement.package_yaw_rad,
         }
+    }
+
+    /// The scripted baseline's actions for every copy now: the recorded path's own progress
+    /// over time, played `time_scale` times as fast (1 = as recorded, 2 = twice as fast), as the
+    /// path speed that brings the reference to where the recording was at the end of the next
+    /// control interval, and no tilt offset (the nominal orientation already follows the recorded
+    /// tilt profile).
+    pub fn scripted_actions(&self, time_scale: f64) -> Vec<f32> {
+        let t = self.dt;
+        self.lanes
+            .iter()
+            .flat_map(|lane| {
+                let path = &self.paths[lane.path];
+                let elapsed = lane.steps as f64 * t;
+                let ahead = path.recorded_progress(time_scale * (elapsed + t)) - lane.progress;
+                [(ahead.max(0.0) / t) as f32, 0.0, 0.0]
+            })
+            .collect()
     }
 
     /// The seal events of the last step (every copy), as the simulator reported them.
@@ -757,7 +784,10 @@ impl Transport {
         let speed = a[0]
             .clamp(lane.path_speed - step, lane.path_speed + step)
             .clamp(0.0, brake.max(0.0));
-        let progress = (lane.progress + 0.5 * (lane.path_speed + speed) * t).min(length);
+        let mut progress = (lane.progress + 0.5 * (lane.path_speed + speed) * t).min(length);
+        if length - progress < PATH_END_SNAP_M {
+            progress = length;
+        }
         let target = self.reference_position(&lane, progress);
         let feedforward = self.paths[lane.path].tangent(progress) * speed;
         let state = self.states[env];

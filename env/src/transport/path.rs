@@ -33,6 +33,11 @@ pub struct TransportPath {
     pub recorded_peak_speed_m_s: f64,
     /// The recording's duration (s).
     pub recorded_duration_s: f64,
+    /// Times of the recorded samples kept for [`TransportPath::recorded_progress`] (s from the
+    /// recording's start, every fourth sample: 60 Hz).
+    pub recorded_time_s: Vec<f64>,
+    /// Arc length the recorded tool had covered at those times (m).
+    pub recorded_arc_m: Vec<f64>,
 }
 
 /// Angle between the tool's y axis under `q` and under `q0` (rad).
@@ -110,6 +115,12 @@ impl TransportPath {
             object_mass_kg: trajectory.meta.object_total_mass_kg as f32,
             recorded_peak_speed_m_s,
             recorded_duration_s: tool.t[n - 1] - tool.t[0],
+            recorded_time_s: (0..n)
+                .step_by(4)
+                .chain([n - 1])
+                .map(|i| tool.t[i] - tool.t[0])
+                .collect(),
+            recorded_arc_m: (0..n).step_by(4).chain([n - 1]).map(|i| arc[i]).collect(),
         })
     }
 
@@ -131,6 +142,22 @@ impl TransportPath {
     pub fn tangent(&self, s: f64) -> DVec3 {
         let (i, _) = self.locate(s);
         (self.points[i + 1] - self.points[i]).normalize_or_zero()
+    }
+
+    /// Arc length the recorded tool had covered `t` seconds after its start (clamped to the
+    /// recording).
+    pub fn recorded_progress(&self, t: f64) -> f64 {
+        let times = &self.recorded_time_s;
+        let k = times.partition_point(|&x| x <= t);
+        if k == 0 {
+            return self.recorded_arc_m[0];
+        }
+        if k >= times.len() {
+            return *self.recorded_arc_m.last().expect("samples");
+        }
+        let (t0, t1) = (times[k - 1], times[k]);
+        let u = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+        self.recorded_arc_m[k - 1] + (self.recorded_arc_m[k] - self.recorded_arc_m[k - 1]) * u
     }
 
     /// Fraction of the final tilt at arc length `s`.
