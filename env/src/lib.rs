@@ -38,6 +38,9 @@ pub enum EnvError {
         /// Number of discrete actions.
         n: usize,
     },
+    /// The environment needs settings that [`make`] cannot give it (use [`make_with`]).
+    #[error("environment `{0}` needs the [transport] table of its training configuration")]
+    NeedsSettings(String),
     /// The environment id is not one this crate provides.
     #[error("unknown environment id `{0}` (expected one of: {known})", known = ALL_IDS.join(", "))]
     UnknownId(String),
@@ -213,6 +216,7 @@ pub fn make(id: &str, num_envs: usize) -> Result<Box<dyn VecEnv>, EnvError> {
     match id {
         cartpole::ID => Ok(Box::new(CartPole::new(num_envs))),
         pendulum::ID => Ok(Box::new(Pendulum::new(num_envs))),
+        transport::ID => Err(EnvError::NeedsSettings(id.to_string())),
         other => Err(EnvError::UnknownId(other.to_string())),
     }
 }
@@ -377,6 +381,8 @@ mod tests {
     fn make_knows_both_classic_control_tasks() {
         assert_eq!(make("CartPole-v1", 3).unwrap().num_envs(), 3);
         assert_eq!(make("Pendulum-v1", 2).unwrap().spec().action.dim(), 1);
+        let err = make("Transport-v0", 1).err().unwrap().to_string();
+        assert!(err.contains("[transport] table"), "{err}");
         let err = make("MountainCar-v0", 1).err().unwrap().to_string();
         assert!(
             err.contains("MountainCar-v0") && err.contains("CartPole-v1"),

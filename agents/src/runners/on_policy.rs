@@ -136,7 +136,7 @@ impl Trainer {
     ) -> Result<Self, AgentError> {
         if env.num_envs() != config.run.num_envs {
             return Err(AgentError::ConfigValue {
-                path: "run".into(),
+                path: config.source.clone().into(),
                 key: "run.num_envs".into(),
                 value: config.run.num_envs.to_string(),
                 expected: format!("the environment's number of copies, {}", env.num_envs()),

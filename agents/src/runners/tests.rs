@@ -447,3 +447,50 @@ fn asymmetric_resume_continues_exactly_like_an_uninterrupted_run() {
     let mut grouped = grouped_trainer(&[0, 1, 2, 3], false);
     assert!(grouped.load_checkpoint(symmetric_dir.path()).is_err());
 }
+
+/// A tiny `Transport-v0` run: two copies on an 11 x 13 grid, 8-step rollouts, one settled variant.
+fn tiny_transport_text() -> String {
+    crate::config::tests::transport_config_text()
+        .replace("num_envs = 16", "num_envs = 2")
+        .replace("total_steps = 163840", "total_steps = 48")
+        .replace("checkpoint_every = 10", "checkpoint_every = 1")
+        .replace("rollout_steps = 64", "rollout_steps = 8")
+        .replace("minibatches = 4", "minibatches = 2")
+        .replace("grid = [16, 19]", "grid = [11, 13]")
+        .replace("settled_variants = 16", "settled_variants = 1")
+        .replace("settle_s = 0.5", "settle_s = 0.1")
+}
+
+#[test]
+fn transport_run_logs_reward_terms_and_resumes_exactly() {
+    let text = tiny_transport_text();
+    let dir = tempfile::tempdir().unwrap();
+    let mut first = trainer(&text);
+    assert!(first.spec().is_asymmetric());
+    first.create_run_dir(dir.path()).unwrap();
+    first.train(dir.path(), Some(1), false).unwrap();
+    let mut resumed = Trainer::resume(dir.path()).unwrap();
+    let (a, b) = (first.run_update().unwrap(), resumed.run_update().unwrap());
+    assert_eq!(a, b);
+    assert_eq!(first.buffers, resumed.buffers);
+    // Every reward term is logged, and the critic reads the wider privileged group.
+    for term in [
+        "progress",
+        "time",
+        "object_motion",
+        "seal",
+        "jerk",
+        "failure",
+        "success",
+    ] {
+        let name = format!("reward/{term}");
+        assert!(
+            a.env_info.iter().any(|(n, v)| *n == name && v.is_finite()),
+            "{name}"
+        );
+    }
+    let model = &resumed.ppo.model;
+    assert_eq!(model.actor_layers()[0].d_in, first.spec().observation.dim());
+    assert_eq!(model.critic_layers()[0].d_in, first.spec().critic_obs_dim());
+    assert!(first.spec().critic_obs_dim() > first.spec().observation.dim());
+}
