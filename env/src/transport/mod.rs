@@ -548,11 +548,6 @@ impl Transport {
         })
     }
 
-    /// The configuration.
-    pub fn config(&self) -> &TransportConfig {
-        &self.config
-    }
-
     /// The recorded paths.
     pub fn paths(&self) -> &[TransportPath] {
         &self.paths
@@ -600,11 +595,6 @@ impl Transport {
     /// The seal events of the last step (every copy), as the simulator reported them.
     pub fn seal_events(&self) -> &[SealEvent] {
         &self.seal
-    }
-
-    /// The simulator (read-only: states, loads, particles for pictures).
-    pub fn simulator(&self) -> &Simulator {
-        &self.sim
     }
 
     /// The package at pick on `path`, the tool held at its start pose.

@@ -173,6 +173,8 @@ fn randomised_values_stay_in_range_and_follow_the_seed_on_any_thread_count() {
             let mut t = env(&text, 3);
             let mut out = t.buffers();
             t.try_reset(seed, &mut out).unwrap();
+            // Every randomised package of this configuration stays sealed.
+            assert_eq!(t.replaced_variants(), 0);
             let conditions: Vec<EpisodeConditions> = (0..3).map(|e| t.conditions(e)).collect();
             (conditions, out)
         })
