@@ -183,21 +183,25 @@ impl TrainConfig {
         (self.run.total_steps / self.batch_size() as u64) as usize
     }
 
-    /// Bytes training would allocate, by part, for an environment with `obs_dim` observations,
-    /// `action_dim` action values and `actor_out` actor outputs (logits or means).
+    /// Bytes training would allocate, by part, for an environment with `obs_dim` observations
+    /// (and `critic_obs_dim` for a critic with its own group), `action_dim` action values and
+    /// `actor_out` actor outputs (logits or means).
     pub fn memory_estimate(
         &self,
         obs_dim: usize,
+        critic_obs_dim: Option<usize>,
         action_dim: usize,
         actor_out: usize,
     ) -> TrainingMemory {
         const F32: f64 = 4.0;
         let (policy, ppo) = (&self.policy, &self.ppo);
         let transitions = self.run.num_envs as f64 * ppo.rollout_steps as f64;
-        // Storage: observations, actions and six per-step values, plus the batch tensors of the update.
-        let rollout = 2.0 * transitions * (obs_dim + action_dim + 6) as f64 * F32;
-        let parameters = |hidden: &[usize], out: usize| {
-            let mut widths = vec![obs_dim];
+        // Storage: observations (and the critic's own, if any), actions and six per-step values,
+        // plus the batch tensors of the update.
+        let stored = obs_dim + critic_obs_dim.unwrap_or(0) + action_dim + 6;
+        let rollout = 2.0 * transitions * stored as f64 * F32;
+        let parameters = |input: usize, hidden: &[usize], out: usize| {
+            let mut widths = vec![input];
             widths.extend_from_slice(hidden);
             widths.push(out);
             widths
@@ -206,13 +210,15 @@ impl TrainConfig {
                 .sum::<f64>()
         };
         // Weights, the rollout copy, gradients, two Adam moments and autodiff temporaries.
-        let actor = 6.0 * parameters(&policy.actor_hidden, actor_out) * F32;
-        let critic = 6.0 * parameters(&policy.critic_hidden, 1) * F32;
+        let actor = 6.0 * parameters(obs_dim, &policy.actor_hidden, actor_out) * F32;
+        let critic_input = critic_obs_dim.unwrap_or(obs_dim);
+        let critic = 6.0 * parameters(critic_input, &policy.critic_hidden, 1) * F32;
         // Values, pre-activations and gradients of every layer for one minibatch.
         let minibatch = transitions / ppo.minibatches.max(1) as f64;
         let widths: usize = policy.actor_hidden.iter().sum::<usize>()
             + policy.critic_hidden.iter().sum::<usize>()
             + obs_dim
+            + critic_obs_dim.unwrap_or(0)
             + actor_out;
         let activations = 4.0 * minibatch * widths as f64 * F32;
         TrainingMemory {
@@ -353,7 +359,13 @@ impl TrainConfig {
             rlpkg_env::SpaceKind::Discrete { n } => n,
             rlpkg_env::SpaceKind::Continuous => spec.action.dim(),
         };
-        let memory = self.memory_estimate(spec.observation.dim(), spec.action.dim(), actor_out);
+        let critic_obs_dim = spec.critic_observation.as_ref().map(|c| c.dim());
+        let memory = self.memory_estimate(
+            spec.observation.dim(),
+            critic_obs_dim,
+            spec.action.dim(),
+            actor_out,
+        );
         let budget = memory_budget_bytes() as f64;
         let total = memory.total();
         if total <= budget {
@@ -632,7 +644,7 @@ epsilon = 1e-8
             );
         }
         let config = parse(CARTPOLE_TEST).unwrap();
-        let memory = config.memory_estimate(4, 1, 2);
+        let memory = config.memory_estimate(4, None, 1, 2);
         // 256 transitions x (4 + 1 + 6) floats, twice.
         assert_eq!(memory.rollout, 2.0 * 256.0 * 11.0 * 4.0);
         assert!(memory.total() < 10e6);

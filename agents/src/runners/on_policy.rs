@@ -281,7 +281,7 @@ impl Trainer {
         }
     }
 
-    /// The critic's observations `n` rows of `raw`, normalised with the critic's own statistics
+    /// `n` rows of raw critic observations, normalised with the critic's own statistics
     /// (asymmetric) or the actor's (symmetric).
     fn normalise_critic(&self, raw: &[f32], n: usize) -> Vec<f32> {
         if !self.spec.is_asymmetric() {
