@@ -70,6 +70,7 @@ pub fn ppo_update_throughput(config: &PpoBenchConfig) -> PpoBenchResult {
     let device = config.backend.device().autodiff();
     let model = ActorCritic::new(
         config.obs_dim,
+        config.obs_dim,
         config.action_dim,
         &config.hidden,
         &config.hidden,

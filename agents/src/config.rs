@@ -19,6 +19,13 @@ pub struct TrainConfig {
     pub policy: PolicyConfig,
     /// Observation and reward normalisation.
     pub normalization: NormalizationConfig,
+    /// Settings of the `Transport-v0` environment (the `[transport]` table, see
+    /// `rlpkg_env::TransportConfig`); absent for the classic-control tasks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transport: Option<toml::Table>,
+    /// The file the configuration was read from (named in the environment's messages).
+    #[serde(skip)]
+    pub source: String,
 }
 
 /// Environment, seed, run length and checkpointing.
@@ -156,10 +163,12 @@ impl TrainConfig {
 
     /// Parses and validates configuration text; `path` is only used in messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self, AgentError> {
-        let config: TrainConfig = toml::from_str(text).map_err(|e| AgentError::ConfigParse {
-            path: path.into(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
+        let mut config: TrainConfig =
+            toml::from_str(text).map_err(|e| AgentError::ConfigParse {
+                path: path.into(),
+                message: e.to_string().trim_end().to_string(),
+            })?;
+        config.source = path.display().to_string();
         config.validate(path)?;
         Ok(config)
     }
@@ -174,21 +183,25 @@ impl TrainConfig {
         (self.run.total_steps / self.batch_size() as u64) as usize
     }
 
-    /// Bytes training would allocate, by part, for an environment with `obs_dim` observations,
-    /// `action_dim` action values and `actor_out` actor outputs (logits or means).
+    /// Bytes training would allocate, by part, for an environment with `obs_dim` observations
+    /// (and `critic_obs_dim` for a critic with its own group), `action_dim` action values and
+    /// `actor_out` actor outputs (logits or means).
     pub fn memory_estimate(
         &self,
         obs_dim: usize,
+        critic_obs_dim: Option<usize>,
         action_dim: usize,
         actor_out: usize,
     ) -> TrainingMemory {
         const F32: f64 = 4.0;
         let (policy, ppo) = (&self.policy, &self.ppo);
         let transitions = self.run.num_envs as f64 * ppo.rollout_steps as f64;
-        // Storage: observations, actions and six per-step values, plus the batch tensors of the update.
-        let rollout = 2.0 * transitions * (obs_dim + action_dim + 6) as f64 * F32;
-        let parameters = |hidden: &[usize], out: usize| {
-            let mut widths = vec![obs_dim];
+        // Storage: observations (and the critic's own, if any), actions and six per-step values,
+        // plus the batch tensors of the update.
+        let stored = obs_dim + critic_obs_dim.unwrap_or(0) + action_dim + 6;
+        let rollout = 2.0 * transitions * stored as f64 * F32;
+        let parameters = |input: usize, hidden: &[usize], out: usize| {
+            let mut widths = vec![input];
             widths.extend_from_slice(hidden);
             widths.push(out);
             widths
@@ -197,13 +210,15 @@ impl TrainConfig {
                 .sum::<f64>()
         };
         // Weights, the rollout copy, gradients, two Adam moments and autodiff temporaries.
-        let actor = 6.0 * parameters(&policy.actor_hidden, actor_out) * F32;
-        let critic = 6.0 * parameters(&policy.critic_hidden, 1) * F32;
+        let actor = 6.0 * parameters(obs_dim, &policy.actor_hidden, actor_out) * F32;
+        let critic_input = critic_obs_dim.unwrap_or(obs_dim);
+        let critic = 6.0 * parameters(critic_input, &policy.critic_hidden, 1) * F32;
         // Values, pre-activations and gradients of every layer for one minibatch.
         let minibatch = transitions / ppo.minibatches.max(1) as f64;
         let widths: usize = policy.actor_hidden.iter().sum::<usize>()
             + policy.critic_hidden.iter().sum::<usize>()
             + obs_dim
+            + critic_obs_dim.unwrap_or(0)
             + actor_out;
         let activations = 4.0 * minibatch * widths as f64 * F32;
         TrainingMemory {
@@ -225,9 +240,29 @@ impl TrainConfig {
             })
         };
         let (run, ppo, policy, norm) = (&self.run, &self.ppo, &self.policy, &self.normalization);
-        if !rlpkg_env::KNOWN_IDS.contains(&run.env.as_str()) {
-            let known = format!("one of {}", rlpkg_env::KNOWN_IDS.join(", "));
+        if !rlpkg_env::ALL_IDS.contains(&run.env.as_str()) {
+            let known = format!("one of {}", rlpkg_env::ALL_IDS.join(", "));
             return fail("run.env", format!("{:?}", run.env), &known);
+        }
+        match (&self.transport, run.env == rlpkg_env::transport::ID) {
+            (Some(table), true) => {
+                rlpkg_env::TransportConfig::from_table(table, &path.display().to_string())?;
+            }
+            (None, true) => {
+                return fail(
+                    "transport",
+                    "missing".into(),
+                    "a [transport] table for run.env = \"Transport-v0\"",
+                )
+            }
+            (Some(_), false) => {
+                return fail(
+                    "transport",
+                    "a table".into(),
+                    &format!("no [transport] table for run.env = {:?}", run.env),
+                )
+            }
+            (None, false) => {}
         }
         let counts = [
             ("run.num_envs", run.num_envs, 1, 1 << 20),
@@ -315,12 +350,22 @@ impl TrainConfig {
     /// Compares [`TrainConfig::memory_estimate`] with the memory of the machine and names the
     /// part that does not fit.
     fn check_memory(&self, path: &Path) -> Result<(), AgentError> {
-        let spec = rlpkg_env::make(&self.run.env, 1)?.spec().clone();
+        let spec = rlpkg_env::spec_with(
+            &self.run.env,
+            self.transport.as_ref(),
+            &path.display().to_string(),
+        )?;
         let actor_out = match spec.action.kind {
             rlpkg_env::SpaceKind::Discrete { n } => n,
             rlpkg_env::SpaceKind::Continuous => spec.action.dim(),
         };
-        let memory = self.memory_estimate(spec.observation.dim(), spec.action.dim(), actor_out);
+        let critic_obs_dim = spec.critic_observation.as_ref().map(|c| c.dim());
+        let memory = self.memory_estimate(
+            spec.observation.dim(),
+            critic_obs_dim,
+            spec.action.dim(),
+            actor_out,
+        );
         let budget = memory_budget_bytes() as f64;
         let total = memory.total();
         if total <= budget {
@@ -599,7 +644,7 @@ epsilon = 1e-8
             );
         }
         let config = parse(CARTPOLE_TEST).unwrap();
-        let memory = config.memory_estimate(4, 1, 2);
+        let memory = config.memory_estimate(4, None, 1, 2);
         // 256 transitions x (4 + 1 + 6) floats, twice.
         assert_eq!(memory.rollout, 2.0 * 256.0 * 11.0 * 4.0);
         assert!(memory.total() < 10e6);
@@ -621,5 +666,42 @@ epsilon = 1e-8
     fn config_hash_changes_with_text() {
         assert_ne!(config_hash("a"), config_hash("b"));
         assert_eq!(config_hash("abc").len(), 16);
+    }
+
+    /// `configs/transport.toml` with the scene and recordings found from this crate's folder.
+    pub(crate) fn transport_config_text() -> String {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+        std::fs::read_to_string(format!("{root}/configs/transport.toml"))
+            .unwrap()
+            .replace(
+                "scene = \"configs/physical.toml\"",
+                &format!("scene = \"{root}/configs/physical.toml\""),
+            )
+            .replace(
+                "recordings = \"data/deformable-sim-real\"",
+                &format!("recordings = \"{root}/data/deformable-sim-real\""),
+            )
+    }
+
+    #[test]
+    fn the_shipped_transport_config_parses_and_bad_transport_keys_are_named() {
+        let text = transport_config_text();
+        let config = parse(&text).unwrap();
+        assert_eq!(config.run.env, "Transport-v0");
+        assert!(config.transport.is_some());
+        let err = parse(&text.replace("control_hz = 20.0", "control_hz = 50.0"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cfg.toml") && err.contains("transport.control_hz"),
+            "{err}"
+        );
+        // The classic-control tasks take no [transport] table; the transport task needs one.
+        let stray = format!("{CARTPOLE_TEST}\n[transport]\nscene = \"physical\"\n");
+        let err = parse(&stray).unwrap_err().to_string();
+        assert!(err.contains("no [transport] table"), "{err}");
+        let missing = text[..text.find("\n[transport]\n").unwrap()].to_string();
+        let err = parse(&missing).unwrap_err().to_string();
+        assert!(err.contains("[transport]"), "{err}");
     }
 }

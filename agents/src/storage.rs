@@ -15,8 +15,12 @@ pub struct RolloutStorage {
     pub obs_dim: usize,
     /// Action width (1 for discrete actions).
     pub action_dim: usize,
+    /// Width of the critic's own observations (`None`: the critic reads `obs`).
+    pub critic_obs_dim: Option<usize>,
     /// Normalised observations the policy acted on, `[T, E, obs_dim]`.
     pub obs: Vec<f32>,
+    /// Normalised critic observations, `[T, E, critic_obs_dim]` (empty without a critic group).
+    pub critic_obs: Vec<f32>,
     /// Raw sampled actions (before any transform to the bounds), `[T, E, action_dim]`.
     pub actions: Vec<f32>,
     /// Log-probabilities of the actions under the rollout policy, `[T, E]`.
@@ -34,7 +38,7 @@ pub struct RolloutStorage {
 }
 
 impl RolloutStorage {
-    /// Zeroed storage.
+    /// Zeroed storage for a symmetric actor-critic (the critic reads the actor's observations).
     pub fn new(steps: usize, envs: usize, obs_dim: usize, action_dim: usize) -> Self {
         let n = steps * envs;
         Self {
@@ -42,7 +46,9 @@ impl RolloutStorage {
             envs,
             obs_dim,
             action_dim,
+            critic_obs_dim: None,
             obs: vec![0.0; n * obs_dim],
+            critic_obs: Vec::new(),
             actions: vec![0.0; n * action_dim],
             log_probs: vec![0.0; n],
             values: vec![0.0; n],
@@ -50,6 +56,22 @@ impl RolloutStorage {
             dones: vec![false; n],
             advantages: vec![0.0; n],
             returns: vec![0.0; n],
+        }
+    }
+
+    /// Zeroed storage for an asymmetric actor-critic whose critic reads `critic_obs_dim`
+    /// observations of its own.
+    pub fn asymmetric(
+        steps: usize,
+        envs: usize,
+        obs_dim: usize,
+        critic_obs_dim: usize,
+        action_dim: usize,
+    ) -> Self {
+        Self {
+            critic_obs_dim: Some(critic_obs_dim),
+            critic_obs: vec![0.0; steps * envs * critic_obs_dim],
+            ..Self::new(steps, envs, obs_dim, action_dim)
         }
     }
 
@@ -77,6 +99,15 @@ impl RolloutStorage {
         self.actions[step * e * a..(step + 1) * e * a].copy_from_slice(actions);
         self.log_probs[step * e..(step + 1) * e].copy_from_slice(log_probs);
         self.values[step * e..(step + 1) * e].copy_from_slice(values);
+    }
+
+    /// Writes the (normalised) critic observations of `step`; only for asymmetric storage.
+    pub fn record_critic_obs(&mut self, step: usize, critic_obs: &[f32]) {
+        let width = self
+            .critic_obs_dim
+            .expect("critic observations are stored only by asymmetric storage");
+        let e = self.envs;
+        self.critic_obs[step * e * width..(step + 1) * e * width].copy_from_slice(critic_obs);
     }
 
     /// Writes the outcome of `step`.

@@ -54,6 +54,7 @@ impl CartPole {
                 ("pole_angular_velocity", "rad/s", f32::MIN, f32::MAX),
             ]),
             action: Space::discrete("push_direction", 2),
+            critic_observation: None,
             max_episode_steps: MAX_EPISODE_STEPS,
         };
         Self {

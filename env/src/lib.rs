@@ -8,10 +8,12 @@
 mod cartpole;
 mod pendulum;
 mod spec;
+pub mod transport;
 
 pub use cartpole::CartPole;
 pub use pendulum::Pendulum;
 pub use spec::{EnvSpec, Space, SpaceKind};
+pub use transport::{Transport, TransportConfig};
 
 use rand_chacha::ChaCha8Rng;
 
@@ -36,8 +38,11 @@ pub enum EnvError {
         /// Number of discrete actions.
         n: usize,
     },
+    /// The environment needs settings that [`make`] cannot give it (use [`make_with`]).
+    #[error("environment `{0}` needs the [transport] table of its training configuration")]
+    NeedsSettings(String),
     /// The environment id is not one this crate provides.
-    #[error("unknown environment id `{0}` (expected one of: {known})", known = KNOWN_IDS.join(", "))]
+    #[error("unknown environment id `{0}` (expected one of: {known})", known = ALL_IDS.join(", "))]
     UnknownId(String),
     /// A saved state does not fit this environment.
     #[error("saved environment state does not fit {env}: {reason}")]
@@ -50,10 +55,47 @@ pub enum EnvError {
     /// `num_envs` must be at least one.
     #[error("num_envs must be >= 1, got {0}")]
     NoEnvs(usize),
+    /// A configuration value is outside its allowed range.
+    #[error("{file}: key `{key}` = {value}: expected {expected}")]
+    Config {
+        /// The configuration file.
+        file: String,
+        /// Dotted key, e.g. `transport.control_hz`.
+        key: String,
+        /// The value found.
+        value: String,
+        /// The allowed range or values.
+        expected: String,
+    },
+    /// A configuration could not be parsed (syntax, unknown or missing key, wrong type), or a
+    /// file it names could not be used.
+    #[error("{file}: {message}")]
+    ConfigParse {
+        /// The configuration file.
+        file: String,
+        /// What is wrong (names the key).
+        message: String,
+    },
+    /// The simulator rejected a call (a fault of the environment, not of the input).
+    #[error("simulator: {0}")]
+    Simulator(String),
+    /// An action value is not a finite number.
+    #[error("environment {env}: action {index} is {value}, expected a finite number")]
+    NonFiniteAction {
+        /// Index of the environment copy.
+        env: usize,
+        /// Index within the action.
+        index: usize,
+        /// The offending value.
+        value: f32,
+    },
 }
 
-/// The environment ids [`make`] accepts.
+/// The environment ids [`make`] accepts (they need no settings).
 pub const KNOWN_IDS: &[&str] = &[cartpole::ID, pendulum::ID];
+
+/// Every environment id [`make_with`] accepts (`Transport-v0` needs its `[transport]` table).
+pub const ALL_IDS: &[&str] = &[cartpole::ID, pendulum::ID, transport::ID];
 
 /// Output buffers of [`VecEnv::reset`] and [`VecEnv::step`], one row per environment copy.
 #[derive(Debug, Clone, PartialEq)]
@@ -69,6 +111,12 @@ pub struct StepBuffers {
     /// For copies with `terminated || truncated`: the observation the episode ended on,
     /// `[E x obs_dim]`; rows of copies still running hold their current observation.
     pub final_obs: Vec<f32>,
+    /// The critic's observations `[E x critic_obs_dim]` when the environment has a separate
+    /// critic group ([`EnvSpec::critic_observation`]); empty otherwise (the critic then sees `obs`).
+    pub critic_obs: Vec<f32>,
+    /// The critic's observation each finished episode ended on (as `final_obs`); empty when
+    /// the environment has no critic group.
+    pub final_critic_obs: Vec<f32>,
 }
 
 impl StepBuffers {
@@ -80,6 +128,36 @@ impl StepBuffers {
             terminated: vec![false; num_envs],
             truncated: vec![false; num_envs],
             final_obs: vec![0.0; num_envs * obs_dim],
+            critic_obs: Vec::new(),
+            final_critic_obs: Vec::new(),
+        }
+    }
+
+    /// Zeroed buffers for an environment whose critic sees its own `critic_obs_dim` observations.
+    pub fn with_critic(num_envs: usize, obs_dim: usize, critic_obs_dim: usize) -> Self {
+        Self {
+            critic_obs: vec![0.0; num_envs * critic_obs_dim],
+            final_critic_obs: vec![0.0; num_envs * critic_obs_dim],
+            ..Self::new(num_envs, obs_dim)
+        }
+    }
+
+    /// The critic's observations: [`StepBuffers::critic_obs`], or `obs` when the environment
+    /// has no critic group.
+    pub fn critic_input(&self) -> &[f32] {
+        if self.critic_obs.is_empty() {
+            &self.obs
+        } else {
+            &self.critic_obs
+        }
+    }
+
+    /// The critic's final observations: [`StepBuffers::final_critic_obs`], or `final_obs`.
+    pub fn final_critic_input(&self) -> &[f32] {
+        if self.final_critic_obs.is_empty() {
+            &self.final_obs
+        } else {
+            &self.final_critic_obs
         }
     }
 
@@ -108,9 +186,25 @@ pub trait VecEnv: Send {
     fn save_state(&self) -> EnvState;
     /// Restores a state written by [`VecEnv::save_state`] of an environment of the same kind and size.
     fn load_state(&mut self, state: &EnvState) -> Result<(), EnvError>;
-    /// Empty buffers of the right sizes for this environment.
+    /// Names of the per-step values [`VecEnv::info`] reports (reward terms, outcomes, ...);
+    /// empty for environments without any.
+    fn info_names(&self) -> &[String] {
+        &[]
+    }
+    /// Per-step values of the last step, `[E x info_names().len()]` row-major.
+    fn info(&self) -> &[f32] {
+        &[]
+    }
+    /// Empty buffers of the right sizes for this environment (with critic buffers if the spec
+    /// has a critic observation group).
     fn buffers(&self) -> StepBuffers {
-        StepBuffers::new(self.num_envs(), self.spec().observation.dim())
+        let spec = self.spec();
+        match &spec.critic_observation {
+            Some(critic) => {
+                StepBuffers::with_critic(self.num_envs(), spec.observation.dim(), critic.dim())
+            }
+            None => StepBuffers::new(self.num_envs(), spec.observation.dim()),
+        }
     }
 }
 
@@ -122,7 +216,52 @@ pub fn make(id: &str, num_envs: usize) -> Result<Box<dyn VecEnv>, EnvError> {
     match id {
         cartpole::ID => Ok(Box::new(CartPole::new(num_envs))),
         pendulum::ID => Ok(Box::new(Pendulum::new(num_envs))),
+        transport::ID => Err(EnvError::NeedsSettings(id.to_string())),
         other => Err(EnvError::UnknownId(other.to_string())),
+    }
+}
+
+/// Builds `num_envs` copies of the environment named `id` with its settings table, if it takes
+/// one (`Transport-v0` takes the `[transport]` table of a training configuration); `source`
+/// names the configuration file in messages.
+pub fn make_with(
+    id: &str,
+    num_envs: usize,
+    settings: Option<&toml::Table>,
+    source: &str,
+) -> Result<Box<dyn VecEnv>, EnvError> {
+    match (id, settings) {
+        (transport::ID, Some(table)) => {
+            if num_envs == 0 {
+                return Err(EnvError::NoEnvs(num_envs));
+            }
+            let config = TransportConfig::from_table(table, source)?;
+            Ok(Box::new(Transport::new(config, num_envs, source)?))
+        }
+        (transport::ID, None) => Err(EnvError::ConfigParse {
+            file: source.to_string(),
+            message: format!("environment {id} needs a [transport] table"),
+        }),
+        (other, None) => make(other, num_envs),
+        (other, Some(_)) if KNOWN_IDS.contains(&other) => Err(EnvError::ConfigParse {
+            file: source.to_string(),
+            message: format!("environment {other} takes no [transport] table"),
+        }),
+        (other, Some(_)) => Err(EnvError::UnknownId(other.to_string())),
+    }
+}
+
+/// The spec of the environment [`make_with`] would build, without building it.
+pub fn spec_with(
+    id: &str,
+    settings: Option<&toml::Table>,
+    source: &str,
+) -> Result<EnvSpec, EnvError> {
+    match (id, settings) {
+        (transport::ID, Some(table)) => {
+            transport::spec_of(&TransportConfig::from_table(table, source)?, source)
+        }
+        _ => Ok(make_with(id, 1, settings, source)?.spec().clone()),
     }
 }
 
@@ -145,6 +284,8 @@ pub struct EnvState {
     pub reals: Vec<f64>,
     /// Integer state (elapsed steps, random streams as [`rng_to_words`]).
     pub counters: Vec<u64>,
+    /// Serialised state that is neither (e.g. simulator snapshots); empty for simple environments.
+    pub bytes: Vec<u8>,
 }
 
 /// Number of words [`rng_to_words`] produces.
@@ -188,6 +329,7 @@ fn pack_state(columns: &[&[f64]], steps: &[usize], rngs: &[rand_chacha::ChaCha8R
             .map(|&s| s as u64)
             .chain(rngs.iter().flat_map(rng_to_words))
             .collect(),
+        bytes: Vec::new(),
     }
 }
 
@@ -239,6 +381,8 @@ mod tests {
     fn make_knows_both_classic_control_tasks() {
         assert_eq!(make("CartPole-v1", 3).unwrap().num_envs(), 3);
         assert_eq!(make("Pendulum-v1", 2).unwrap().spec().action.dim(), 1);
+        let err = make("Transport-v0", 1).err().unwrap().to_string();
+        assert!(err.contains("[transport] table"), "{err}");
         let err = make("MountainCar-v0", 1).err().unwrap().to_string();
         assert!(
             err.contains("MountainCar-v0") && err.contains("CartPole-v1"),

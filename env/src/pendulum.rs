@@ -52,6 +52,7 @@ impl Pendulum {
                 ),
             ]),
             action: Space::continuous(&[("torque", "N m", -MAX_TORQUE as f32, MAX_TORQUE as f32)]),
+            critic_observation: None,
             max_episode_steps: MAX_EPISODE_STEPS,
         };
         Self {

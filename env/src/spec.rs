@@ -61,10 +61,29 @@ impl Space {
 pub struct EnvSpec {
     /// Gymnasium-style id, e.g. `CartPole-v1`.
     pub id: String,
-    /// Observation space.
+    /// Observation space of the actor: what the policy acts on (on a real robot, what the cell
+    /// measures).
     pub observation: Space,
+    /// Observation space of the critic when it differs from the actor's (RSL-RL's observation
+    /// groups: the critic may see privileged simulator state); `None`: the critic sees
+    /// [`EnvSpec::observation`].
+    pub critic_observation: Option<Space>,
     /// Action space.
     pub action: Space,
     /// Episodes are truncated after this many steps.
     pub max_episode_steps: usize,
+}
+
+impl EnvSpec {
+    /// Width of the critic's observation: [`EnvSpec::critic_observation`]'s, or the actor's.
+    pub fn critic_obs_dim(&self) -> usize {
+        self.critic_observation
+            .as_ref()
+            .map_or(self.observation.dim(), Space::dim)
+    }
+
+    /// Whether the critic has its own observation group.
+    pub fn is_asymmetric(&self) -> bool {
+        self.critic_observation.is_some()
+    }
 }

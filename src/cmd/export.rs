@@ -10,7 +10,7 @@ use anyhow::Context;
 use clap::Args;
 use rlpkg_agents::export::check::{check_path, CheckData};
 use rlpkg_agents::export::runtime::{
-    compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes,
+    compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes_in,
     run_episodes_keeping, Latency,
 };
 use rlpkg_agents::export::{write_onnx, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
@@ -118,6 +118,13 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     let trainer = Trainer::resume(run).map_err(agent_error)?;
     let burn = TrainedPolicy::from_trainer(&trainer);
     let mut graph = burn.policy_graph();
+    if args.with_value && graph.critic.is_none() {
+        return Err(input_error(format!(
+            "{}: --with-value: this run's critic reads privileged simulator observations that a \
+             real cell does not measure, so only the actor is exported",
+            run.display()
+        )));
+    }
     if !args.with_value {
         graph.critic = None;
     }
@@ -137,7 +144,24 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
         latency_runs: args.latency.map(|runs| runs as usize),
     };
     let mut summary = export_policy(&graph, &out, &options)?;
-    summary.burn = Some(compare_with_burn(&burn, &graph, &out, options.verify_rows)?);
+    // The environment the run trained on: 100 episodes of a classic-control task, 8 of a
+    // simulated one (each copy is a simulator lane).
+    let config = trainer.config();
+    let episodes = if config.transport.is_some() { 8 } else { 100 };
+    let mut env = rlpkg_env::make_with(
+        &config.run.env,
+        episodes,
+        config.transport.as_ref(),
+        &config.source,
+    )
+    .map_err(|e| input_error(format!("{}: {e}", run.display())))?;
+    summary.burn = Some(compare_with_burn(
+        &burn,
+        &graph,
+        &out,
+        options.verify_rows,
+        env.as_mut(),
+    )?);
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
@@ -169,13 +193,14 @@ pub struct BurnComparison {
 }
 
 /// Compares the actions of the burn policy and of tract on the file at `out`, on `rows` random
-/// observations and up to `rows` observations the burn policy visits (100 episodes, seed 0); an
-/// error when either difference exceeds [`TOLERANCE`].
+/// observations and up to `rows` observations the burn policy visits (one episode per copy of
+/// `env`, seed 0); an error when either difference exceeds [`TOLERANCE`].
 fn compare_with_burn(
     burn: &TrainedPolicy,
     graph: &PolicyGraph,
     out: &Path,
     rows: usize,
+    env: &mut dyn rlpkg_env::VecEnv,
 ) -> anyhow::Result<BurnComparison> {
     let onnx = OnnxPolicy::load(out).map_err(wrap_export_error)?;
     let action_dim = graph.action_dim();
@@ -192,7 +217,7 @@ fn compare_with_burn(
     };
     let random = random_observations(graph, rows, 0);
     let random_max_abs_diff = diff(&random, rows)?;
-    let visited = run_episodes(&graph.meta.env_id, 100, 0, |obs, n| {
+    let visited = run_episodes_in(env, 0, rows, |obs, n| {
         Ok::<_, ExportError>(burn.act(obs, n))
     })?
     .visited_obs;
@@ -386,6 +411,7 @@ mod tests {
     use super::*;
     use crate::error::exit_code;
     use rlpkg_agents::export::random::{cartpole_like, pendulum_like};
+    use rlpkg_agents::export::runtime::run_episodes;
 
     fn options() -> ExportOptions {
         ExportOptions {

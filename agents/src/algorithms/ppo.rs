@@ -82,6 +82,8 @@ pub struct Ppo {
 /// One minibatch as tensors.
 struct Minibatch {
     obs: Tensor<2>,
+    /// The critic's observations (the same tensor as `obs` for a symmetric actor-critic).
+    critic_obs: Tensor<2>,
     actions: Tensor<2>,
     old_log_probs: Tensor<1>,
     old_values: Tensor<1>,
@@ -174,7 +176,7 @@ impl Ppo {
         let policy_loss = surrogate.min_pair(surrogate_clipped).mean().neg();
 
         // Value loss, optionally clipped around the rollout's values.
-        let values = self.model.value(mb.obs);
+        let values = self.model.value(mb.critic_obs);
         let value_loss = if cfg.clip_value_loss {
             let delta = values - mb.old_values;
             // (old + clip(v - old) - R) with old - R precomputed on the host.
@@ -283,11 +285,20 @@ impl Ppo {
         let vector =
             |values: Vec<f32>| Tensor::from_data(TensorData::new(values, [n]), &self.device);
         let (old_values, returns) = (gather(&storage.values, 1), gather(&storage.returns, 1));
-        Minibatch {
-            obs: Tensor::from_data(
-                TensorData::new(gather(&storage.obs, d), [n, d]),
+        let obs = Tensor::from_data(
+            TensorData::new(gather(&storage.obs, d), [n, d]),
+            &self.device,
+        );
+        let critic_obs = match storage.critic_obs_dim {
+            Some(c) => Tensor::from_data(
+                TensorData::new(gather(&storage.critic_obs, c), [n, c]),
                 &self.device,
             ),
+            None => obs.clone(),
+        };
+        Minibatch {
+            obs,
+            critic_obs,
             actions,
             old_log_probs: vector(gather(&storage.log_probs, 1)),
             old_values_minus_returns: vector(
@@ -334,7 +345,7 @@ mod tests {
                 .clone()
                 .clamp(1.0 - cfg.clip_ratio, 1.0 + cfg.clip_ratio);
         let policy_loss = surrogate.max_pair(surrogate_clipped).mean();
-        let values = ppo.model.reference_value(mb.obs);
+        let values = ppo.model.reference_value(mb.critic_obs);
         let unclipped = (values.clone() - mb.returns.clone()).powi_scalar(2);
         let clipped =
             mb.old_values.clone() + (values - mb.old_values).clamp(-cfg.clip_ratio, cfg.clip_ratio);
@@ -381,6 +392,7 @@ mod tests {
         let device = backend.device().autodiff();
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let model = ActorCritic::new(
+            obs_dim,
             obs_dim,
             classes.unwrap_or(actions),
             &[hidden, hidden],

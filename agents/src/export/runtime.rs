@@ -419,12 +419,26 @@ pub fn run_episodes_keeping<E>(
     episodes: usize,
     seed: u64,
     keep_rows: usize,
-    mut act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
+    act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
 ) -> Result<EpisodeStats, E>
 where
     E: From<rlpkg_env::EnvError>,
 {
     let mut env = rlpkg_env::make(env_id, episodes)?;
+    run_episodes_in(env.as_mut(), seed, keep_rows, act)
+}
+
+/// [`run_episodes_keeping`] on an environment built by the caller: one episode per copy.
+pub fn run_episodes_in<E>(
+    env: &mut dyn rlpkg_env::VecEnv,
+    seed: u64,
+    keep_rows: usize,
+    mut act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
+) -> Result<EpisodeStats, E>
+where
+    E: From<rlpkg_env::EnvError>,
+{
+    let episodes = env.num_envs();
     let obs_dim = env.spec().observation.dim();
     let mut buffers = env.buffers();
     env.reset(seed, &mut buffers);

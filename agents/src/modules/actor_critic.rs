@@ -33,10 +33,13 @@ impl ActorCritic {
     /// Builds both networks with orthogonal weights (gain sqrt(2) for hidden layers, 0.01 for the
     /// actor's output, 1 for the critic's) and zero biases, drawn from `rng`.
     ///
+    /// The actor reads `obs_dim` observations, the critic `critic_obs_dim` (the actor's width for
+    /// a symmetric actor-critic, another for a critic with privileged observations).
     /// `log_std` is `Some(initial value)` for a Gaussian head with `actor_out` dimensions.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         obs_dim: usize,
+        critic_obs_dim: usize,
         actor_out: usize,
         actor_hidden: &[usize],
         critic_hidden: &[usize],
@@ -46,7 +49,7 @@ impl ActorCritic {
         device: &Device,
     ) -> Self {
         let actor = mlp(obs_dim, actor_hidden, actor_out, 0.01, rng, device);
-        let critic = mlp(obs_dim, critic_hidden, 1, 1.0, rng, device);
+        let critic = mlp(critic_obs_dim, critic_hidden, 1, 1.0, rng, device);
         let log_std = log_std.map(|value| {
             Param::from_tensor(Tensor::from_data(
                 TensorData::new(vec![value; actor_out], [actor_out]),
@@ -66,7 +69,7 @@ impl ActorCritic {
         forward(&self.actor, self.activation, obs)
     }
 
-    /// Critic values for `obs` `[B, obs_dim]`: `[B]`.
+    /// Critic values for the critic's observations `[B, critic_obs_dim]`: `[B]`.
     pub fn value(&self, obs: Tensor<2>) -> Tensor<1> {
         forward(&self.critic, self.activation, obs).squeeze_dim(1)
     }
@@ -286,6 +289,7 @@ mod tests {
         let device = crate::Backend::DEFAULT.device();
         let model = ActorCritic::new(
             4,
+            4,
             2,
             &[8, 6],
             &[5],
@@ -306,5 +310,28 @@ mod tests {
         assert_eq!(model.actor(obs.clone()).dims(), [3, 2]);
         assert_eq!(model.value(obs).dims(), [3]);
         assert!(model.critic_layers()[0].bias.iter().all(|&b| b == 0.0));
+    }
+
+    #[test]
+    fn critic_may_read_a_wider_observation_than_the_actor() {
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let device = crate::Backend::DEFAULT.device();
+        let model = ActorCritic::new(
+            3,
+            7,
+            2,
+            &[8],
+            &[5],
+            Activation::Tanh,
+            Some(0.0),
+            &mut rng,
+            &device,
+        );
+        assert_eq!(model.actor_layers()[0].d_in, 3);
+        assert_eq!(model.critic_layers()[0].d_in, 7);
+        let actor_obs = Tensor::from_data(TensorData::new(vec![0.1f32; 6], [2, 3]), &device);
+        let critic_obs = Tensor::from_data(TensorData::new(vec![0.1f32; 14], [2, 7]), &device);
+        assert_eq!(model.actor(actor_obs).dims(), [2, 2]);
+        assert_eq!(model.value(critic_obs).dims(), [2]);
     }
 }

@@ -83,6 +83,17 @@ struct TrainerState {
     /// The event file at this checkpoint (absent in checkpoints of older versions).
     #[serde(default)]
     events: Option<EventsPosition>,
+    /// Statistics of the critic's own observations (asymmetric environments only).
+    #[serde(default)]
+    critic_obs_stats: Option<StatsBits>,
+    /// The critic's observations and final observations (empty for symmetric environments).
+    #[serde(default)]
+    critic_obs: Vec<u32>,
+    #[serde(default)]
+    final_critic_obs: Vec<u32>,
+    /// The environment's serialised state beyond reals and counters (simulator snapshots).
+    #[serde(default)]
+    env_bytes: Vec<u8>,
 }
 
 fn bits(values: &[f64]) -> Vec<u64> {
@@ -239,6 +250,10 @@ impl Trainer {
             running_lengths: self.running_lengths.clone(),
             recent_returns: self.recent_returns.iter().map(|r| r.to_bits()).collect(),
             events: self.events.clone(),
+            critic_obs_stats: self.critic_obs_stats.as_ref().map(StatsBits::from),
+            critic_obs: bits32(&self.buffers.critic_obs),
+            final_critic_obs: bits32(&self.buffers.final_critic_obs),
+            env_bytes: env.bytes,
         }
     }
 
@@ -253,6 +268,15 @@ impl Trainer {
         }
         let (config, text) = TrainConfig::load(&config_path)?;
         let mut trainer = Trainer::new(config, text)?;
+        trainer.load_checkpoint(run_dir)?;
+        Ok(trainer)
+    }
+
+    /// Loads the latest checkpoint of `run_dir` into this trainer, freshly built from the same
+    /// configuration (and, for [`Trainer::with_env`], an environment built the same way).
+    pub fn load_checkpoint(&mut self, run_dir: &Path) -> Result<(), AgentError> {
+        let config_path = run_dir.join(CONFIG_FILE);
+        let trainer = self;
         let checkpoint = latest_checkpoint(run_dir)?;
         let state_path = checkpoint.join(STATE);
         let json = std::fs::read(&state_path).map_err(|e| AgentError::io(&state_path, e))?;
@@ -280,8 +304,7 @@ impl Trainer {
             .load(&optim_path)
             .map_err(|e| checkpoint_error(&optim_path, e.to_string()))?;
         trainer.check_counters(&state, &checkpoint, &state_path)?;
-        trainer.restore_state(state, &state_path)?;
-        Ok(trainer)
+        trainer.restore_state(state, &state_path)
     }
 
     /// The counters of `state` must agree with the configuration and the folder they are in: every
@@ -327,8 +350,11 @@ impl Trainer {
     fn restore_state(&mut self, state: TrainerState, path: &Path) -> Result<(), AgentError> {
         let n = self.config.run.num_envs;
         let dim = self.spec.observation.dim();
+        let critic_len = self.buffers.critic_obs.len();
         if state.obs.len() != n * dim
             || state.final_obs.len() != n * dim
+            || state.critic_obs.len() != critic_len
+            || state.final_critic_obs.len() != critic_len
             || [
                 state.rewards.len(),
                 state.terminated.len(),
@@ -355,6 +381,18 @@ impl Trainer {
                 ))
             }
         }
+        match (&mut self.critic_obs_stats, &state.critic_obs_stats) {
+            (Some(stats), Some(saved)) if saved.mean.len() == self.spec.critic_obs_dim() => {
+                saved.restore(stats)
+            }
+            (None, None) => {}
+            _ => {
+                return Err(checkpoint_error(
+                    path,
+                    "critic observation statistics do not match",
+                ))
+            }
+        }
         match (
             &mut self.reward_norm,
             &state.reward_stats,
@@ -370,9 +408,12 @@ impl Trainer {
         self.env.load_state(&EnvState {
             reals: floats(&state.env_reals),
             counters: state.env_counters,
+            bytes: state.env_bytes,
         })?;
         self.buffers.obs = floats32(&state.obs);
         self.buffers.final_obs = floats32(&state.final_obs);
+        self.buffers.critic_obs = floats32(&state.critic_obs);
+        self.buffers.final_critic_obs = floats32(&state.final_critic_obs);
         self.buffers.rewards = floats32(&state.rewards);
         self.buffers.terminated = state.terminated;
         self.buffers.truncated = state.truncated;

@@ -41,6 +41,10 @@ pub struct UpdateLog {
     pub stats: UpdateStats,
     /// Explained variance of the rollout's values.
     pub explained_variance: f32,
+    /// The environment's per-step values ([`VecEnv::info`]) over the rollout: names under
+    /// `episode/` as a mean per finished episode (absent when none finished), the others as a
+    /// mean per step and copy.
+    pub env_info: Vec<(String, f32)>,
 }
 
 /// Where the wall time of the last update went (seconds), for the `perf/` scalars.
@@ -80,6 +84,9 @@ pub struct Trainer {
     pub ppo: Ppo,
     storage: RolloutStorage,
     pub(super) obs_stats: Option<RunningMeanStd>,
+    /// Running statistics of the critic's own observations (asymmetric environments with
+    /// observation normalisation only; a symmetric critic shares `obs_stats`).
+    pub(super) critic_obs_stats: Option<RunningMeanStd>,
     pub(super) reward_norm: Option<RewardNormalizer>,
     transform: Option<ActionTransform>,
     pub(super) rng: ChaCha8Rng,
@@ -110,8 +117,32 @@ impl Trainer {
         config_text: String,
         backend: Backend,
     ) -> Result<Self, AgentError> {
+        let env = rlpkg_env::make_with(
+            &config.run.env,
+            config.run.num_envs,
+            config.transport.as_ref(),
+            &config.source,
+        )?;
+        Self::with_env(config, config_text, env, backend)
+    }
+
+    /// A fresh run on an environment built by the caller (`config.run.num_envs` copies of it;
+    /// `config.run.env` is then only a label).
+    pub fn with_env(
+        config: TrainConfig,
+        config_text: String,
+        mut env: Box<dyn VecEnv>,
+        backend: Backend,
+    ) -> Result<Self, AgentError> {
+        if env.num_envs() != config.run.num_envs {
+            return Err(AgentError::ConfigValue {
+                path: config.source.clone().into(),
+                key: "run.num_envs".into(),
+                value: config.run.num_envs.to_string(),
+                expected: format!("the environment's number of copies, {}", env.num_envs()),
+            });
+        }
         let device = backend.device();
-        let mut env = rlpkg_env::make(&config.run.env, config.run.num_envs)?;
         let spec = env.spec().clone();
         let mut buffers = env.buffers();
         env.reset(config.run.seed, &mut buffers);
@@ -139,8 +170,10 @@ impl Trainer {
             ActivationName::Elu => Activation::Elu,
         };
         let obs_dim = spec.observation.dim();
+        let critic_obs_dim = spec.critic_obs_dim();
         let model = ActorCritic::new(
             obs_dim,
+            critic_obs_dim,
             actor_out,
             &config.policy.actor_hidden,
             &config.policy.critic_hidden,
@@ -153,13 +186,25 @@ impl Trainer {
         let norm = &config.normalization;
         let num_envs = config.run.num_envs;
         Ok(Self {
-            storage: RolloutStorage::new(
-                config.ppo.rollout_steps,
-                num_envs,
-                obs_dim,
-                spec.action.dim(),
-            ),
+            storage: if spec.is_asymmetric() {
+                RolloutStorage::asymmetric(
+                    config.ppo.rollout_steps,
+                    num_envs,
+                    obs_dim,
+                    critic_obs_dim,
+                    spec.action.dim(),
+                )
+            } else {
+                RolloutStorage::new(
+                    config.ppo.rollout_steps,
+                    num_envs,
+                    obs_dim,
+                    spec.action.dim(),
+                )
+            },
             obs_stats: norm.observations.then(|| RunningMeanStd::new(obs_dim)),
+            critic_obs_stats: (norm.observations && spec.is_asymmetric())
+                .then(|| RunningMeanStd::new(critic_obs_dim)),
             reward_norm: norm.rewards.then(|| {
                 RewardNormalizer::new(
                     num_envs,
@@ -236,9 +281,31 @@ impl Trainer {
         }
     }
 
+    /// `n` rows of raw critic observations, normalised with the critic's own statistics
+    /// (asymmetric) or the actor's (symmetric).
+    fn normalise_critic(&self, raw: &[f32], n: usize) -> Vec<f32> {
+        if !self.spec.is_asymmetric() {
+            return self.normalise(raw, n);
+        }
+        let norm = &self.config.normalization;
+        match &self.critic_obs_stats {
+            Some(stats) => stats
+                .to_obs_normaliser(norm.epsilon, norm.clip_obs)
+                .apply(raw, n),
+            None => raw.to_vec(),
+        }
+    }
+
     fn obs_tensor(&self, obs: Vec<f32>, n: usize) -> Tensor<2> {
         let dim = self.spec.observation.dim();
         Tensor::from_data(TensorData::new(obs, [n, dim]), &self.device)
+    }
+
+    /// Critic values of `n` rows of normalised critic observations.
+    fn critic_values(&self, policy: &ActorCritic, critic_obs: Vec<f32>, n: usize) -> Vec<f32> {
+        let dim = self.spec.critic_obs_dim();
+        let input = Tensor::from_data(TensorData::new(critic_obs, [n, dim]), &self.device);
+        policy.value(input).try_into_vec_as().expect("f32 values")
     }
 
     /// One rollout and one PPO update.
@@ -247,7 +314,22 @@ impl Trainer {
         self.ppo.anneal(self.update, num_updates);
         let start = Instant::now();
         self.env_step_seconds = 0.0;
-        let (episode_returns, episode_lengths) = self.collect_rollout()?;
+        let (episode_returns, episode_lengths, info_sums) = self.collect_rollout()?;
+        let steps = (self.config.ppo.rollout_steps * self.config.run.num_envs) as f64;
+        let episodes = episode_returns.len() as f64;
+        let env_info = self
+            .env
+            .info_names()
+            .iter()
+            .zip(info_sums)
+            .filter_map(|(name, sum)| {
+                if name.starts_with("episode/") {
+                    (episodes > 0.0).then(|| (name.clone(), (sum / episodes) as f32))
+                } else {
+                    Some((name.clone(), (sum / steps) as f32))
+                }
+            })
+            .collect();
         let rollout_done = Instant::now();
         let stats = self.ppo.update(&self.storage, &mut self.rng);
         self.timing = UpdateTiming {
@@ -264,12 +346,15 @@ impl Trainer {
             episode_lengths,
             stats,
             explained_variance: self.storage.explained_variance(),
+            env_info,
         })
     }
 
     /// Steps every copy `rollout_steps` times with the current policy, fills the storage and
-    /// computes advantages; returns the episodes that ended.
-    fn collect_rollout(&mut self) -> Result<(Vec<f32>, Vec<usize>), AgentError> {
+    /// computes advantages; returns the episodes that ended and the sums of the environment's
+    /// per-step values ([`VecEnv::info`]) over steps and copies.
+    #[allow(clippy::type_complexity)]
+    fn collect_rollout(&mut self) -> Result<(Vec<f32>, Vec<usize>, Vec<f64>), AgentError> {
         let policy = self.ppo.model.valid();
         let n = self.config.run.num_envs;
         let gamma = self.config.ppo.gamma;
@@ -278,9 +363,14 @@ impl Trainer {
             .clone()
             .map(|l| l.exp().try_into_vec_as().expect("f32 std"));
         let mut finished = (Vec::new(), Vec::new());
+        let info_dim = self.env.info_names().len();
+        let mut info_sums = vec![0.0f64; info_dim];
         for step in 0..self.config.ppo.rollout_steps {
             if let Some(stats) = &mut self.obs_stats {
                 stats.update(&self.buffers.obs, n);
+            }
+            if let Some(stats) = &mut self.critic_obs_stats {
+                stats.update(&self.buffers.critic_obs, n);
             }
             let obs = self.normalise(&self.buffers.obs, n);
             let obs_t = self.obs_tensor(obs.clone(), n);
@@ -305,7 +395,13 @@ impl Trainer {
                 }
             };
             let log_probs: Vec<f32> = log_probs.try_into_vec_as().expect("f32 log-probs");
-            let values: Vec<f32> = policy.value(obs_t).try_into_vec_as().expect("f32 values");
+            let values: Vec<f32> = if self.spec.is_asymmetric() {
+                let critic_obs = self.normalise_critic(&self.buffers.critic_obs, n);
+                self.storage.record_critic_obs(step, &critic_obs);
+                self.critic_values(&policy, critic_obs, n)
+            } else {
+                policy.value(obs_t).try_into_vec_as().expect("f32 values")
+            };
             self.storage
                 .record_action(step, &obs, &actions, &log_probs, &values);
 
@@ -323,6 +419,11 @@ impl Trainer {
             let env_start = Instant::now();
             self.env.step(&env_actions, &mut self.buffers)?;
             self.env_step_seconds += env_start.elapsed().as_secs_f64();
+            for row in self.env.info().chunks_exact(info_dim.max(1)) {
+                for (sum, &x) in info_sums.iter_mut().zip(row) {
+                    *sum += x as f64;
+                }
+            }
             self.global_step += n as u64;
 
             let done: Vec<bool> = (0..n).map(|i| self.buffers.done(i)).collect();
@@ -350,34 +451,25 @@ impl Trainer {
                 .filter(|&i| self.buffers.truncated[i] && !self.buffers.terminated[i])
                 .collect();
             if !truncated.is_empty() {
-                let dim = self.spec.observation.dim();
+                let dim = self.spec.critic_obs_dim();
+                let final_critic = self.buffers.final_critic_input();
                 let rows: Vec<f32> = truncated
                     .iter()
-                    .flat_map(|&i| {
-                        self.buffers.final_obs[i * dim..(i + 1) * dim]
-                            .iter()
-                            .copied()
-                    })
+                    .flat_map(|&i| final_critic[i * dim..(i + 1) * dim].iter().copied())
                     .collect();
-                let final_obs = self.normalise(&rows, truncated.len());
-                let final_values: Vec<f32> = policy
-                    .value(self.obs_tensor(final_obs, truncated.len()))
-                    .try_into_vec_as()
-                    .expect("f32 values");
+                let final_obs = self.normalise_critic(&rows, truncated.len());
+                let final_values = self.critic_values(&policy, final_obs, truncated.len());
                 for (&i, v) in truncated.iter().zip(final_values) {
                     rewards[i] += gamma * v;
                 }
             }
             self.storage.record_outcome(step, &rewards, &done);
         }
-        let next_obs = self.normalise(&self.buffers.obs, n);
-        let last_values: Vec<f32> = policy
-            .value(self.obs_tensor(next_obs, n))
-            .try_into_vec_as()
-            .expect("f32 values");
+        let next_obs = self.normalise_critic(self.buffers.critic_input(), n);
+        let last_values = self.critic_values(&policy, next_obs, n);
         self.storage
             .compute_returns(&last_values, gamma, self.config.ppo.gae_lambda);
-        Ok(finished)
+        Ok((finished.0, finished.1, info_sums))
     }
 
     /// Trains until `stop_after` updates (or the configured number), logging to TensorBoard and
@@ -419,8 +511,15 @@ impl Trainer {
             write_perf_scalars(&mut writer, &self.timing, log.global_step as usize);
             writer.flush()?;
             bar.set_position(self.global_step);
+            let success = log
+                .env_info
+                .iter()
+                .find(|(name, _)| name == "episode/success")
+                .map_or(String::new(), |(_, rate)| {
+                    format!(" | success {:.0} %", 100.0 * rate)
+                });
             bar.set_message(format!(
-                "{sps:.0} SPS | mean return {:.1}",
+                "{sps:.0} SPS | mean return {:.1}{success}",
                 self.recent_mean_return()
             ));
             if bar.is_hidden()
@@ -471,6 +570,9 @@ fn write_scalars(writer: &mut EventWriter, log: &UpdateLog, sps: f64) {
     writer.add_scalar("losses/clipfrac", s.clip_fraction, step);
     writer.add_scalar("losses/grad_norm", s.grad_norm, step);
     writer.add_scalar("losses/explained_variance", log.explained_variance, step);
+    for (name, value) in &log.env_info {
+        writer.add_scalar(&format!("env/{name}"), *value, step);
+    }
 }
 
 /// `perf/`: wall-time shares of one rollout + update (environment steps, the rest of the rollout,

@@ -10,7 +10,7 @@ use serde::Serialize;
 use super::Trainer;
 use crate::config::check_memory;
 use crate::export::graph::argmax;
-use crate::export::runtime::run_episodes_keeping;
+use crate::export::runtime::run_episodes_in;
 use crate::export::{ActionHead, ActionTransform, ObsNormaliser, PolicyGraph, PolicyMeta};
 use crate::modules::ActorCritic;
 use crate::AgentError;
@@ -74,7 +74,9 @@ impl TrainedPolicy {
         }
     }
 
-    /// The plain-number description the ONNX exporter writes (critic included).
+    /// The plain-number description the ONNX exporter writes (the critic included when it reads
+    /// the actor's observations; a critic with privileged observations is left out, since the
+    /// exported graph has one input, what a real cell measures).
     pub fn policy_graph(&self) -> PolicyGraph {
         let actor = self.model.actor_layers();
         let head = match &self.transform {
@@ -88,7 +90,7 @@ impl TrainedPolicy {
         PolicyGraph {
             normaliser: self.normaliser.clone(),
             actor,
-            critic: Some(self.model.critic_layers()),
+            critic: (!self.spec.is_asymmetric()).then(|| self.model.critic_layers()),
             activation: self.model.activation(),
             head,
             meta: PolicyMeta::from_spec(&self.spec, env!("CARGO_PKG_VERSION"), &self.config_hash),
@@ -150,10 +152,15 @@ pub fn evaluate_run(run_dir: &Path, episodes: usize, seed: u64) -> Result<EvalSu
         &format!("--episodes {episodes}"),
         evaluation_memory_bytes(episodes, policy.spec.observation.dim(), widths),
     )?;
+    let config = trainer.config();
+    let mut env = rlpkg_env::make_with(
+        &config.run.env,
+        episodes,
+        config.transport.as_ref(),
+        &config.source,
+    )?;
     let stats =
-        run_episodes_keeping::<AgentError>(&policy.spec.id, episodes, seed, 0, |obs, n| {
-            Ok(policy.act(obs, n))
-        })?;
+        run_episodes_in::<AgentError>(env.as_mut(), seed, 0, |obs, n| Ok(policy.act(obs, n)))?;
     let returns = stats.returns.iter().map(|&r| r as f64);
     Ok(EvalSummary {
         env_id: policy.spec.id.clone(),

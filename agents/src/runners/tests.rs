@@ -226,3 +226,271 @@ fn resume_after_a_lost_checkpoint_logs_each_update_once() {
     let sps = events.iter().filter(|e| e.tag == "charts/SPS").count();
     assert_eq!(sps, 4);
 }
+
+/// CartPole with observation groups: the actor sees `actor_dims` of CartPole's four values, the
+/// critic all four plus the fraction of the episode's step limit used (or, with
+/// `critic_copies_actor`, exactly the actor's values).
+struct GroupedCartPole {
+    inner: Box<dyn rlpkg_env::VecEnv>,
+    spec: rlpkg_env::EnvSpec,
+    inner_buffers: rlpkg_env::StepBuffers,
+    actor_dims: Vec<usize>,
+    critic_copies_actor: bool,
+    steps: Vec<usize>,
+}
+
+impl GroupedCartPole {
+    fn new(num_envs: usize, actor_dims: &[usize], critic_copies_actor: bool) -> Self {
+        let inner = rlpkg_env::make("CartPole-v1", num_envs).unwrap();
+        let full = inner.spec().observation.clone();
+        let pick = |dims: &[usize]| rlpkg_env::Space {
+            kind: full.kind.clone(),
+            names: dims.iter().map(|&d| full.names[d].clone()).collect(),
+            units: dims.iter().map(|&d| full.units[d].clone()).collect(),
+            low: dims.iter().map(|&d| full.low[d]).collect(),
+            high: dims.iter().map(|&d| full.high[d]).collect(),
+        };
+        let observation = pick(actor_dims);
+        let critic = if critic_copies_actor {
+            observation.clone()
+        } else {
+            let mut critic = full.clone();
+            critic.names.push("episode_fraction".into());
+            critic.units.push("1".into());
+            critic.low.push(0.0);
+            critic.high.push(1.0);
+            critic
+        };
+        let spec = rlpkg_env::EnvSpec {
+            id: "GroupedCartPole".into(),
+            observation,
+            critic_observation: Some(critic),
+            ..inner.spec().clone()
+        };
+        Self {
+            inner_buffers: inner.buffers(),
+            inner,
+            spec,
+            actor_dims: actor_dims.to_vec(),
+            critic_copies_actor,
+            steps: vec![0; num_envs],
+        }
+    }
+
+    fn fill(&self, full: &[f32], steps: &[usize], obs: &mut [f32], critic: &mut [f32]) {
+        let (a, c) = (self.actor_dims.len(), self.spec.critic_obs_dim());
+        for (env, row) in full.chunks_exact(4).enumerate() {
+            for (k, &d) in self.actor_dims.iter().enumerate() {
+                obs[env * a + k] = row[d];
+            }
+            let critic_row = &mut critic[env * c..(env + 1) * c];
+            if self.critic_copies_actor {
+                critic_row.copy_from_slice(&obs[env * a..(env + 1) * a]);
+            } else {
+                critic_row[..4].copy_from_slice(row);
+                critic_row[4] = steps[env] as f32 / self.spec.max_episode_steps as f32;
+            }
+        }
+    }
+}
+
+impl rlpkg_env::VecEnv for GroupedCartPole {
+    fn spec(&self) -> &rlpkg_env::EnvSpec {
+        &self.spec
+    }
+    fn num_envs(&self) -> usize {
+        self.inner.num_envs()
+    }
+    fn reset(&mut self, seed: u64, out: &mut rlpkg_env::StepBuffers) {
+        self.inner.reset(seed, &mut self.inner_buffers);
+        self.steps.iter_mut().for_each(|s| *s = 0);
+        let inner = &self.inner_buffers;
+        self.fill(&inner.obs, &self.steps, &mut out.obs, &mut out.critic_obs);
+        out.final_obs.copy_from_slice(&out.obs);
+        out.final_critic_obs.copy_from_slice(&out.critic_obs);
+    }
+    fn step(
+        &mut self,
+        actions: &[f32],
+        out: &mut rlpkg_env::StepBuffers,
+    ) -> Result<(), rlpkg_env::EnvError> {
+        self.inner.step(actions, &mut self.inner_buffers)?;
+        let inner = &self.inner_buffers;
+        let ended: Vec<usize> = self.steps.iter().map(|s| s + 1).collect();
+        for (i, s) in self.steps.iter_mut().enumerate() {
+            *s = if inner.done(i) { 0 } else { *s + 1 };
+        }
+        self.fill(&inner.obs, &self.steps, &mut out.obs, &mut out.critic_obs);
+        self.fill(
+            &inner.final_obs,
+            &ended,
+            &mut out.final_obs,
+            &mut out.final_critic_obs,
+        );
+        out.rewards.copy_from_slice(&inner.rewards);
+        out.terminated.copy_from_slice(&inner.terminated);
+        out.truncated.copy_from_slice(&inner.truncated);
+        Ok(())
+    }
+    fn save_state(&self) -> rlpkg_env::EnvState {
+        let mut state = self.inner.save_state();
+        state.counters.extend(self.steps.iter().map(|&s| s as u64));
+        state
+    }
+    fn load_state(&mut self, state: &rlpkg_env::EnvState) -> Result<(), rlpkg_env::EnvError> {
+        let n = self.steps.len();
+        let split = state.counters.len().saturating_sub(n);
+        let inner = rlpkg_env::EnvState {
+            reals: state.reals.clone(),
+            counters: state.counters[..split].to_vec(),
+            bytes: Vec::new(),
+        };
+        self.inner.load_state(&inner)?;
+        for (s, &c) in self.steps.iter_mut().zip(&state.counters[split..]) {
+            *s = c as usize;
+        }
+        Ok(())
+    }
+}
+
+fn grouped_trainer(actor_dims: &[usize], critic_copies_actor: bool) -> Trainer {
+    let config = config(CARTPOLE_TEST);
+    let env = GroupedCartPole::new(config.run.num_envs, actor_dims, critic_copies_actor);
+    Trainer::with_env(
+        config,
+        CARTPOLE_TEST.to_string(),
+        Box::new(env),
+        crate::Backend::DEFAULT,
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_critic_group_equal_to_the_actor_observations_trains_like_the_symmetric_path() {
+    // The asymmetric path (own storage, own normaliser, own bootstrap rows) fed the actor's
+    // observations must reproduce the symmetric trainer bit for bit.
+    let mut symmetric = trainer(CARTPOLE_TEST);
+    let mut grouped = grouped_trainer(&[0, 1, 2, 3], true);
+    assert!(grouped.spec().is_asymmetric());
+    for _ in 0..3 {
+        let (a, b) = (
+            symmetric.run_update().unwrap(),
+            grouped.run_update().unwrap(),
+        );
+        assert_eq!(a, b);
+    }
+    let (a, b) = (
+        symmetric.ppo.model.flat_parameters(),
+        grouped.ppo.model.flat_parameters(),
+    );
+    assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
+
+#[test]
+fn asymmetric_critic_trains_on_its_own_wider_observations() {
+    let mut t = grouped_trainer(&[0, 2], false);
+    let before = t.ppo.model.flat_parameters();
+    let log = t.run_update().unwrap();
+    assert!(log.stats.value_loss.is_finite() && log.stats.policy_loss.is_finite());
+    let model = &t.ppo.model;
+    assert_eq!(model.actor_layers()[0].d_in, 2);
+    assert_eq!(model.critic_layers()[0].d_in, 5);
+    let after = model.flat_parameters();
+    let moved = after
+        .iter()
+        .zip(&before)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
+    assert!(moved > 1e-4, "the update barely moved: {moved}");
+    // The critic's statistics see the privileged episode fraction (which grows within episodes).
+    let stats = t.critic_obs_stats.as_ref().unwrap();
+    assert_eq!(stats.mean.len(), 5);
+    assert!(stats.mean[4] > 0.0 && stats.count > 0.0, "{stats:?}");
+    assert_eq!(t.obs_stats.as_ref().unwrap().mean.len(), 2);
+    // The exported graph holds the actor alone and reads the actor's two observations.
+    let policy = TrainedPolicy::from_trainer(&t);
+    let graph = policy.policy_graph();
+    assert!(graph.critic.is_none());
+    graph.validate().unwrap();
+    let obs = [0.01f32, -0.02, 0.03, 0.0];
+    let (burn_actions, graph_actions) = (policy.act(&obs, 2), graph.act(&obs, 2));
+    assert_eq!(burn_actions, graph_actions);
+}
+
+#[test]
+fn asymmetric_resume_continues_exactly_like_an_uninterrupted_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut straight = grouped_trainer(&[0, 2], false);
+    let straight_logs: Vec<UpdateLog> = (0..4).map(|_| straight.run_update().unwrap()).collect();
+
+    let mut first_half = grouped_trainer(&[0, 2], false);
+    first_half.create_run_dir(dir.path()).unwrap();
+    first_half.train(dir.path(), Some(2), false).unwrap();
+    drop(first_half);
+    let mut resumed = grouped_trainer(&[0, 2], false);
+    resumed.load_checkpoint(dir.path()).unwrap();
+    let resumed_logs: Vec<UpdateLog> = (0..2).map(|_| resumed.run_update().unwrap()).collect();
+    assert_eq!(resumed_logs, straight_logs[2..]);
+    assert_eq!(resumed.critic_obs_stats, straight.critic_obs_stats);
+    let (a, b) = (
+        straight.ppo.model.flat_parameters(),
+        resumed.ppo.model.flat_parameters(),
+    );
+    assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+    // A checkpoint of a symmetric run does not fit the asymmetric trainer.
+    let symmetric_dir = tempfile::tempdir().unwrap();
+    let mut symmetric = trainer(CARTPOLE_TEST);
+    symmetric.create_run_dir(symmetric_dir.path()).unwrap();
+    symmetric
+        .train(symmetric_dir.path(), Some(1), false)
+        .unwrap();
+    let mut grouped = grouped_trainer(&[0, 1, 2, 3], false);
+    assert!(grouped.load_checkpoint(symmetric_dir.path()).is_err());
+}
+
+/// A tiny `Transport-v0` run: two copies on an 11 x 13 grid, 8-step rollouts, one settled variant.
+fn tiny_transport_text() -> String {
+    crate::config::tests::transport_config_text()
+        .replace("num_envs = 16", "num_envs = 2")
+        .replace("total_steps = 30720", "total_steps = 48")
+        .replace("checkpoint_every = 10", "checkpoint_every = 1")
+        .replace("rollout_steps = 64", "rollout_steps = 8")
+        .replace("minibatches = 4", "minibatches = 2")
+        .replace("grid = [16, 19]", "grid = [11, 13]")
+        .replace("settled_variants = 16", "settled_variants = 1")
+        .replace("settle_s = 0.5", "settle_s = 0.1")
+}
+
+#[test]
+fn transport_run_logs_reward_terms_and_resumes_exactly() {
+    let text = tiny_transport_text();
+    let dir = tempfile::tempdir().unwrap();
+    let mut first = trainer(&text);
+    assert!(first.spec().is_asymmetric());
+    first.create_run_dir(dir.path()).unwrap();
+    first.train(dir.path(), Some(1), false).unwrap();
+    let mut resumed = Trainer::resume(dir.path()).unwrap();
+    let (a, b) = (first.run_update().unwrap(), resumed.run_update().unwrap());
+    assert_eq!(a, b);
+    assert_eq!(first.buffers, resumed.buffers);
+    // Every reward term is logged, and the critic reads the wider privileged group.
+    for term in [
+        "progress",
+        "time",
+        "object_motion",
+        "seal",
+        "jerk",
+        "failure",
+        "success",
+    ] {
+        let name = format!("reward/{term}");
+        assert!(
+            a.env_info.iter().any(|(n, v)| *n == name && v.is_finite()),
+            "{name}"
+        );
+    }
+    let model = &resumed.ppo.model;
+    assert_eq!(model.actor_layers()[0].d_in, first.spec().observation.dim());
+    assert_eq!(model.critic_layers()[0].d_in, first.spec().critic_obs_dim());
+    assert!(first.spec().critic_obs_dim() > first.spec().observation.dim());
+}

@@ -1,0 +1,311 @@
+//! The `[transport]` table of a training configuration (`configs/transport.toml`): scene, paths
+//! from the recordings, control rate, limits, success tolerances, reward weights and domain
+//! randomisation. Every key is required unless said otherwise; unknown keys and out-of-range
+//! values are rejected with the file, the key and what was expected.
+
+use serde::{Deserialize, Serialize};
+
+use rlpkg_sim::Randomization;
+
+use crate::EnvError;
+
+/// The whole `[transport]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransportConfig {
+    /// Scene file (e.g. `configs/physical.toml`) or preset name (`physical`); needs SI masses
+    /// and the seal model on.
+    pub scene: String,
+    /// Package grid `[rows, columns]` (overrides the scene's; coarse grids train faster).
+    pub grid: [usize; 2],
+    /// Folder of the recordings (`data/deformable-sim-real`).
+    pub recordings: String,
+    /// Recordings whose tool paths the episodes follow; each episode takes the one whose final
+    /// tilt is nearest its target tilt.
+    pub paths: Vec<String>,
+    /// Control rate (Hz): one action per `1 / control_hz` seconds.
+    pub control_hz: f64,
+    /// Episodes are truncated after this long (s).
+    pub time_limit_s: f64,
+    /// Settled package states built at each `reset(seed)` (see [`TransportRandomization`]).
+    pub settled_variants: usize,
+    /// Extra settling after the scene's rest period before the snapshot is taken (s).
+    pub settle_s: f64,
+    /// Limits of the action and of the robot.
+    pub limits: TransportLimits,
+    /// When an episode counts as a success.
+    pub success: SuccessTolerances,
+    /// When an episode counts as a failure besides seal and health events.
+    pub failure: FailureLimits,
+    /// Reward weights.
+    pub reward: RewardWeights,
+    /// Domain randomisation.
+    pub randomization: TransportRandomization,
+}
+
+/// Bounds of the action and of the robot carrying the tool (SI).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransportLimits {
+    /// Largest speed along the path (m/s); at most 1.5 x the high-velocity recordings' peak
+    /// tool speed (0.63 m/s).
+    pub max_path_speed_m_s: f64,
+    /// Largest change of the path speed per second (m/s²); at most 1.5 x the recordings' peak
+    /// tool acceleration (3.47 m/s²).
+    pub max_path_accel_m_s2: f64,
+    /// Largest tilt of the tool away from the path's nominal orientation, about world x and z
+    /// (degrees).
+    pub max_tilt_offset_deg: f64,
+    /// The robot's largest angular speed (rad/s); at most 1.5 x the recordings' peak (2.07 rad/s).
+    pub max_angular_speed_rad_s: f64,
+    /// The robot's largest angular acceleration (rad/s²).
+    pub max_angular_accel_rad_s2: f64,
+    /// Fraction of the predicted pose error the tracking controller removes per control
+    /// interval, in (0, 1].
+    pub tracking_gain: f64,
+}
+
+/// Tolerances at the place pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SuccessTolerances {
+    /// Tool within this distance of the place position (m).
+    pub position_m: f64,
+    /// Tool orientation within this angle of the place orientation (degrees).
+    pub orientation_deg: f64,
+    /// Tool slower than this (m/s).
+    pub tool_speed_m_s: f64,
+    /// Object slower than this relative to the tool (m/s): it has settled.
+    pub object_speed_m_s: f64,
+}
+
+/// Failures besides the seal model's events and health freezes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FailureLimits {
+    /// The package counts as dropped when the object is further than this from the tool (m).
+    pub max_object_distance_m: f64,
+}
+
+/// Reward weights; every term is reported separately (see [`super::RewardTerms`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RewardWeights {
+    /// Per path length travelled (a whole path gives this much).
+    pub progress: f64,
+    /// Per second of episode time (a penalty).
+    pub time: f64,
+    /// Per metre the object moves relative to the tool (a penalty).
+    pub object_motion: f64,
+    /// Per second and unit of the largest cup utilisation above `seal_threshold` (a penalty).
+    pub seal: f64,
+    /// Utilisation below which the seal term is zero.
+    pub seal_threshold: f64,
+    /// Per m/s² of change of the tool's linear acceleration between control steps (a penalty).
+    pub jerk: f64,
+    /// Per rad/s² of change of the tool's angular acceleration between control steps (a penalty).
+    pub angular_jerk: f64,
+    /// Once, when an episode fails (a penalty).
+    pub failure: f64,
+    /// Once, when the package is placed (a bonus).
+    pub success: f64,
+}
+
+/// Domain randomisation.
+///
+/// Quantities of the settled package (object mass, its place and tilt in the package, the
+/// package's yaw under the tool, material scales, start jitter) are drawn for each of the
+/// `settled_variants` states that `reset(seed)` settles once; every episode restores one of them
+/// at random (drawn from the copy's own stream), so the package need not be re-simulated at each
+/// reset. The target tilt and the goal jitter are drawn per episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransportRandomization {
+    /// Tilt of the tool at the place pose (degrees), uniform.
+    pub target_tilt_deg: [f64; 2],
+    /// Largest offset of the place position (m), uniform in a ball.
+    pub goal_jitter_m: f64,
+    /// Largest offset of the pick position (m), uniform in a horizontal disc, per variant.
+    pub start_jitter_m: f64,
+    /// Package quantities per settled variant (the simulator's [`Randomization`]).
+    pub package: Randomization,
+}
+
+/// A configuration problem: `key` = `value` in `source`, expected `expected`.
+fn bad(source: &str, key: &str, value: impl ToString, expected: &str) -> EnvError {
+    EnvError::Config {
+        file: source.to_string(),
+        key: format!("transport.{key}"),
+        value: value.to_string(),
+        expected: expected.to_string(),
+    }
+}
+
+fn check(source: &str, key: &str, value: f64, low: f64, high: f64) -> Result<(), EnvError> {
+    if value.is_finite() && (low..=high).contains(&value) {
+        Ok(())
+    } else {
+        Err(bad(
+            source,
+            key,
+            value,
+            &format!("a number in [{low}, {high}]"),
+        ))
+    }
+}
+
+/// Peak tool speed of the high-velocity recordings (m/s).
+pub const RECORDED_PEAK_SPEED_M_S: f64 = 0.63;
+/// Peak tool acceleration of the high-velocity recordings (m/s²).
+pub const RECORDED_PEAK_ACCEL_M_S2: f64 = 3.47;
+/// Peak tool angular speed of the recordings (rad/s).
+pub const RECORDED_PEAK_ANGULAR_SPEED_RAD_S: f64 = 2.07;
+
+impl TransportConfig {
+    /// Parses the `[transport]` table; `source` names the file in messages.
+    pub fn from_table(table: &toml::Table, source: &str) -> Result<Self, EnvError> {
+        let config: TransportConfig =
+            table
+                .clone()
+                .try_into()
+                .map_err(|e: toml::de::Error| EnvError::ConfigParse {
+                    file: source.to_string(),
+                    message: format!("[transport]: {}", e.message()),
+                })?;
+        config.validate(source)?;
+        Ok(config)
+    }
+
+    /// Parses the `[transport]` table of a whole configuration file's text.
+    pub fn from_toml_str(text: &str, source: &str) -> Result<Self, EnvError> {
+        let table: toml::Table = toml::from_str(text).map_err(|e| EnvError::ConfigParse {
+            file: source.to_string(),
+            message: e.to_string(),
+        })?;
+        match table.get("transport") {
+            Some(toml::Value::Table(t)) => Self::from_table(t, source),
+            _ => Err(bad(source, "", "missing", "a [transport] table")),
+        }
+    }
+
+    /// Range checks of every key.
+    pub fn validate(&self, source: &str) -> Result<(), EnvError> {
+        let s = source;
+        if !(self.grid[0] >= 3 && self.grid[1] >= 3 && self.grid[0] <= 64 && self.grid[1] <= 64) {
+            return Err(bad(
+                s,
+                "grid",
+                format!("{:?}", self.grid),
+                "[rows, columns] within [3, 64]",
+            ));
+        }
+        if self.paths.is_empty() {
+            return Err(bad(s, "paths", "[]", "at least one recording id"));
+        }
+        check(s, "control_hz", self.control_hz, 10.0, 30.0)?;
+        check(s, "time_limit_s", self.time_limit_s, 0.1, 600.0)?;
+        if !(1..=1024).contains(&self.settled_variants) {
+            return Err(bad(
+                s,
+                "settled_variants",
+                self.settled_variants,
+                "an integer in [1, 1024]",
+            ));
+        }
+        check(s, "settle_s", self.settle_s, 0.0, 10.0)?;
+        let l = &self.limits;
+        check(
+            s,
+            "limits.max_path_speed_m_s",
+            l.max_path_speed_m_s,
+            0.01,
+            1.5 * RECORDED_PEAK_SPEED_M_S,
+        )?;
+        check(
+            s,
+            "limits.max_path_accel_m_s2",
+            l.max_path_accel_m_s2,
+            0.01,
+            1.5 * RECORDED_PEAK_ACCEL_M_S2,
+        )?;
+        check(
+            s,
+            "limits.max_tilt_offset_deg",
+            l.max_tilt_offset_deg,
+            0.0,
+            45.0,
+        )?;
+        check(
+            s,
+            "limits.max_angular_speed_rad_s",
+            l.max_angular_speed_rad_s,
+            0.01,
+            1.5 * RECORDED_PEAK_ANGULAR_SPEED_RAD_S,
+        )?;
+        check(
+            s,
+            "limits.max_angular_accel_rad_s2",
+            l.max_angular_accel_rad_s2,
+            0.01,
+            1000.0,
+        )?;
+        check(s, "limits.tracking_gain", l.tracking_gain, 1e-3, 1.0)?;
+        let t = &self.success;
+        check(s, "success.position_m", t.position_m, 1e-4, 1.0)?;
+        check(s, "success.orientation_deg", t.orientation_deg, 0.01, 90.0)?;
+        check(s, "success.tool_speed_m_s", t.tool_speed_m_s, 1e-4, 10.0)?;
+        check(
+            s,
+            "success.object_speed_m_s",
+            t.object_speed_m_s,
+            1e-4,
+            10.0,
+        )?;
+        check(
+            s,
+            "failure.max_object_distance_m",
+            self.failure.max_object_distance_m,
+            0.01,
+            10.0,
+        )?;
+        let w = &self.reward;
+        for (key, value) in [
+            ("reward.progress", w.progress),
+            ("reward.time", w.time),
+            ("reward.object_motion", w.object_motion),
+            ("reward.seal", w.seal),
+            ("reward.jerk", w.jerk),
+            ("reward.angular_jerk", w.angular_jerk),
+            ("reward.failure", w.failure),
+            ("reward.success", w.success),
+        ] {
+            check(s, key, value, 0.0, 1e6)?;
+        }
+        check(s, "reward.seal_threshold", w.seal_threshold, 0.0, 1.0)?;
+        let r = &self.randomization;
+        let [lo, hi] = r.target_tilt_deg;
+        if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi && hi <= 90.0) {
+            return Err(bad(
+                s,
+                "randomization.target_tilt_deg",
+                format!("{:?}", r.target_tilt_deg),
+                "[low, high] within [0, 90] degrees",
+            ));
+        }
+        check(s, "randomization.goal_jitter_m", r.goal_jitter_m, 0.0, 0.2)?;
+        check(
+            s,
+            "randomization.start_jitter_m",
+            r.start_jitter_m,
+            0.0,
+            0.2,
+        )?;
+        r.package
+            .validate(&format!("{source} [transport.randomization.package]"))
+            .map_err(|e| EnvError::ConfigParse {
+                file: source.to_string(),
+                message: e.to_string(),
+            })?;
+        Ok(())
+    }
+}
