@@ -13,7 +13,7 @@ use rlpkg_sim::{CupLoad, EnvSpec, Model, SceneConfig, Simulator};
 
 #[test]
 fn no_recording_loses_a_cup_in_the_physical_scene() {
-    let mut scene = SceneConfig::preset("physical").unwrap();
+    let scene = SceneConfig::preset("physical").unwrap();
     assert!(scene.seal.enabled, "the physical scene models the seal");
     let data = Dataset::open(
         Path::new(env!("CARGO_MANIFEST_DIR"))
