@@ -104,6 +104,7 @@ pub(crate) struct StepConstants {
     pub(crate) seal: SealConstants,
     pub(crate) solver: Solver,
     pub(crate) iterations: u32,
+    pub(crate) chebyshev_rho: f32,
     /// Reach of the disc's centre beyond the package's particles before it counts as outside (m).
     pub(crate) object_outside_margin: f32,
     pub(crate) object_outside: bool,
@@ -134,6 +135,7 @@ impl StepConstants {
             seal: SealConstants::new(model),
             solver: c.integrator.solver,
             iterations: c.integrator.iterations,
+            chebyshev_rho: c.integrator.chebyshev_rho,
             object_outside_margin: model.particle_radius + c.disc.radius_m,
             object_outside: c.health.object_outside,
         }
@@ -184,6 +186,10 @@ pub(crate) struct Block<const W: usize> {
     disc_candidates: Vec<u32>,
     /// Block descent only: whether each package particle is among `disc_candidates`.
     near_disc: Vec<bool>,
+    /// Block descent with Chebyshev acceleration only: package positions before the current sweep
+    /// and before the previous one.
+    x_before: Vec<V3<L<W>>>,
+    x_older: Vec<V3<L<W>>>,
     /// Block descent only: bending force and stiffness per package vertex at a sweep's start.
     bend_force: Vec<V3<L<W>>>,
     bend_stiffness: Vec<Sym3<L<W>>>,
@@ -319,6 +325,8 @@ impl<const W: usize> Block<W> {
             spring_slots: Vec::new(),
             disc_candidates: Vec::new(),
             near_disc: Vec::new(),
+            x_before: Vec::new(),
+            x_older: Vec::new(),
             bend_force: Vec::new(),
             bend_stiffness: Vec::new(),
         };
@@ -327,6 +335,10 @@ impl<const W: usize> Block<W> {
             block.inertia_target = vec![zero3; model.num_package];
             block.bend_force = vec![zero3; model.num_package];
             block.bend_stiffness = vec![Sym3::zero(); model.num_package];
+            if model.config.integrator.chebyshev_rho > 0.0 {
+                block.x_before = vec![zero3; model.num_package];
+                block.x_older = vec![zero3; model.num_package];
+            }
         }
         for (l, &e) in envs.iter().enumerate() {
             block.init_lane(l, model, &specs[e]);
@@ -468,6 +480,8 @@ impl<const W: usize> Block<W> {
             &self.x_start,
             &self.inertia_target,
             &self.bend_force,
+            &self.x_before,
+            &self.x_older,
         ];
         particle_arrays
             .iter()
