@@ -136,34 +136,8 @@ pub fn dihedral_angle<T: Real>(x: [V3<T>; 4]) -> T {
 /// in lanes where a wing is degenerate (|n| < 1e-6, Warp returns early there).
 #[inline(always)]
 pub fn bending<T: Real>(x: [V3<T>; 4], v: [V3<T>; 4], rest_angle: T, ke: T, kd: T) -> [V3<T>; 4] {
-    let one = T::splat(1.0);
-    let eps = T::splat(1.0e-6);
-    let n1 = (x[2] - x[0]).cross(x[3] - x[0]);
-    let n2 = (x[3] - x[1]).cross(x[2] - x[1]);
-    let (l1, l2) = (n1.length(), n2.length());
-    let ok = l1.min(l2);
-    // Degenerate lanes compute with length 1 and are zeroed below.
-    let l1 = T::select_lt(l1, eps, one, l1);
-    let l2 = T::select_lt(l2, eps, one, l2);
-    let rcp1 = one / l1;
-    let rcp2 = one / l2;
-    let cos = n1.dot(n2) * rcp1 * rcp2;
-    let n1 = n1 * rcp1 * rcp1;
-    let n2 = n2 * rcp2 * rcp2;
-    let e = x[3] - x[2];
-    let e_hat = e.normalize();
-    let e_len = e.length();
-    let s = n2.cross(n1).dot(e_hat).sign();
-    let angle = cos.acos_clamped() * s;
-    let d1 = n1 * e_len;
-    let d2 = n2 * e_len;
-    let d3 = n1 * (x[0] - x[3]).dot(e_hat) + n2 * (x[1] - x[3]).dot(e_hat);
-    let d4 = n1 * (x[2] - x[0]).dot(e_hat) + n2 * (x[2] - x[1]).dot(e_hat);
-    let f_elastic = ke * (angle - rest_angle);
-    let f_damp = kd * (d1.dot(v[0]) + d2.dot(v[1]) + d3.dot(v[2]) + d4.dot(v[3]));
-    let f_total = -e_len * (f_elastic + f_damp);
-    let f_total = T::select_lt(ok, eps, T::splat(0.0), f_total);
-    [d1 * f_total, d2 * f_total, d3 * f_total, d4 * f_total]
+    // The same arithmetic as the block-descent integrator's element, without its stiffness.
+    crate::implicit::bending_element(x, v, rest_angle, ke, kd, T::splat(0.0)).0
 }
 
 /// Contact material: stiffness, damping, friction stiffness, friction coefficient.
