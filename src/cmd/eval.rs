@@ -4,9 +4,10 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use rlpkg_agents::evaluate_run;
+use rlpkg_agents::{evaluate_run, AgentError, Trainer};
 use serde::Serialize;
 
+use crate::cmd::eval_transport;
 use crate::error::input_error;
 
 /// Options of `--params` (simulator parameters against recordings) and of a policy (run folder or
@@ -45,6 +46,10 @@ pub struct EvalArgs {
     /// Where to write pictures and the JSON summary (with --params).
     #[arg(long, requires = "params", conflicts_with_all = ["run", "policy"])]
     pub out: Option<PathBuf>,
+    /// Transport runs: time scales of the scripted baseline evaluated beside the policy (the
+    /// recorded high-velocity path played that many times as fast).
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.25, 1.5], conflicts_with_all = ["params", "policy"])]
+    pub scripted: Vec<f64>,
     /// Print a JSON summary on standard output.
     #[arg(long)]
     pub json: bool,
@@ -76,13 +81,26 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         ));
     };
     let episodes = episode_count(args.episodes)?;
-    let summary = evaluate_run(run, episodes, args.seed).map_err(|e| {
+    let as_input = |e: AgentError| {
         if e.is_input_error() {
             input_error(e)
         } else {
             e.into()
         }
-    })?;
+    };
+    let trainer = Trainer::resume(run).map_err(as_input)?;
+    if eval_transport::is_transport_run(&trainer) {
+        return eval_transport::run(
+            run,
+            &trainer,
+            episodes,
+            args.seed,
+            &args.scripted,
+            args.json,
+        );
+    }
+    drop(trainer);
+    let summary = evaluate_run(run, episodes, args.seed).map_err(as_input)?;
     print_policy_summary(&summary, args.json, &|s| {
         format!(
             "{} ({}, update {}, {} steps): {} deterministic episodes, return {:.2} +- {:.2} \

@@ -31,6 +31,7 @@
 //! simulator froze the copy as unhealthy); truncated at `time_limit_s`.
 
 mod config;
+mod evaluate;
 mod path;
 mod reward;
 
@@ -50,6 +51,7 @@ pub use config::{
     TransportRandomization, RECORDED_PEAK_ACCEL_M_S2, RECORDED_PEAK_ANGULAR_SPEED_RAD_S,
     RECORDED_PEAK_SPEED_M_S,
 };
+pub use evaluate::{run_episodes, Ending, EpisodeOutcome, OutcomeSummary};
 pub use path::TransportPath;
 pub use reward::{RewardTerms, StepOutcome, REWARD_TERM_NAMES};
 

@@ -364,3 +364,31 @@ fn scripted_recorded_path_places_the_package_without_a_seal_failure() {
         "{seconds} s against {recorded} s recorded"
     );
 }
+
+#[test]
+fn run_episodes_reports_every_copy_once_with_its_ending_and_time() {
+    // A tool held still for a 1 s time limit: every copy times out after 20 control steps, with the
+    // seal loaded (the package hangs from the cups) and the object nearly still.
+    let mut t = env(
+        &test_table().replace("time_limit_s = 12.0", "time_limit_s = 1.0"),
+        3,
+    );
+    let outcomes = run_episodes::<EnvError>(&mut t, 5, |t, _| {
+        Ok(vec![0.0; t.num_envs() * t.spec().action.dim()])
+    })
+    .unwrap();
+    assert_eq!(outcomes.len(), 3);
+    for o in &outcomes {
+        assert_eq!(o.ending, Ending::TimedOut, "{o:?}");
+        assert!((o.time_s - 1.0).abs() < 1e-6, "{o:?}");
+        assert!(
+            o.peak_seal_utilisation > 0.0 && o.peak_seal_utilisation < 0.5,
+            "{o:?}"
+        );
+        // The object sways a few centimetres (path length) as the package settles under the cups.
+        assert!(o.object_motion_m < 0.1, "{o:?}");
+    }
+    let summary = OutcomeSummary::of("still", &outcomes);
+    assert_eq!(summary.timed_out_pct, 100.0);
+    assert_eq!(summary.time_to_place_mean_s, None);
+}

@@ -1,0 +1,250 @@
+//! Episode outcomes of the transport task for any driver (a trained policy, the scripted
+//! baseline), over the same seeded episodes, and the summary the evaluation table prints.
+
+use serde::Serialize;
+
+use super::{info_names, Transport};
+use crate::{EnvError, VecEnv};
+
+/// How an episode ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Ending {
+    /// Placed within the tolerances with the object settled.
+    Success,
+    /// A cup's seal failed (peeled, slid, or never sealed).
+    CupDetached,
+    /// The object left the package's reach (further than the failure distance from the tool).
+    Dropped,
+    /// The simulation's health check stopped the copy.
+    Unhealthy,
+    /// The time limit came first.
+    TimedOut,
+}
+
+/// One episode's outcome.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct EpisodeOutcome {
+    /// How it ended.
+    pub ending: Ending,
+    /// Simulated time from pick to the end of the episode (s).
+    pub time_s: f64,
+    /// Undiscounted return.
+    pub episode_return: f64,
+    /// Distance the object travelled relative to the tool over the episode (m).
+    pub object_motion_m: f64,
+    /// Largest seal utilisation (load / capacity) of any cup at any control step.
+    pub peak_seal_utilisation: f64,
+}
+
+/// Runs the first episode of every copy of `env` (copy `i` is seeded from `seed` as
+/// [`VecEnv::reset`] does) with `act` choosing the actions from the environment and its actor
+/// observations, and returns one outcome per copy.
+pub fn run_episodes<E: From<EnvError>>(
+    env: &mut Transport,
+    seed: u64,
+    mut act: impl FnMut(&Transport, &[f32]) -> Result<Vec<f32>, E>,
+) -> Result<Vec<EpisodeOutcome>, E> {
+    let n = env.num_envs();
+    let names = info_names();
+    let column = |name: &str| names.iter().position(|x| x == name).expect("info name");
+    let (success, detached, dropped, unhealthy) = (
+        column("episode/success"),
+        column("episode/failure_cup_detached"),
+        column("episode/failure_dropped"),
+        column("episode/failure_unhealthy"),
+    );
+    let (seal, motion) = (
+        column("state/peak_seal_utilisation"),
+        column("state/object_motion_m"),
+    );
+    let width = names.len();
+    let dt = env.control_interval_s();
+    let mut buffers = env.buffers();
+    env.try_reset(seed, &mut buffers)?;
+    let mut outcomes: Vec<Option<EpisodeOutcome>> = vec![None; n];
+    let mut running = vec![
+        EpisodeOutcome {
+            ending: Ending::TimedOut,
+            time_s: 0.0,
+            episode_return: 0.0,
+            object_motion_m: 0.0,
+            peak_seal_utilisation: 0.0,
+        };
+        n
+    ];
+    while outcomes.iter().any(Option::is_none) {
+        let actions = act(env, &buffers.obs)?;
+        env.step(&actions, &mut buffers)?;
+        let info = env.info();
+        for copy in 0..n {
+            if outcomes[copy].is_some() {
+                continue;
+            }
+            let row = &info[copy * width..(copy + 1) * width];
+            let o = &mut running[copy];
+            o.time_s += dt;
+            o.episode_return += buffers.rewards[copy] as f64;
+            o.object_motion_m += row[motion] as f64;
+            o.peak_seal_utilisation = o.peak_seal_utilisation.max(row[seal] as f64);
+            if buffers.done(copy) {
+                o.ending = if row[success] > 0.5 {
+                    Ending::Success
+                } else if row[detached] > 0.5 {
+                    Ending::CupDetached
+                } else if row[dropped] > 0.5 {
+                    Ending::Dropped
+                } else if row[unhealthy] > 0.5 {
+                    Ending::Unhealthy
+                } else {
+                    Ending::TimedOut
+                };
+                outcomes[copy] = Some(*o);
+            }
+        }
+    }
+    Ok(outcomes.into_iter().flatten().collect())
+}
+
+/// One row of the evaluation table: a driver's outcomes over the same episodes as the others.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct OutcomeSummary {
+    /// What drove the tool (`policy`, `scripted x1.25`, ...).
+    pub driver: String,
+    /// Episodes run.
+    pub episodes: usize,
+    /// Share of episodes placed successfully (%).
+    pub success_pct: f64,
+    /// Share ended by a seal failure (%).
+    pub cup_detached_pct: f64,
+    /// Share ended by the object leaving the package's reach (%).
+    pub dropped_pct: f64,
+    /// Share stopped by the health check (%).
+    pub unhealthy_pct: f64,
+    /// Share that ran out of time (%).
+    pub timed_out_pct: f64,
+    /// Mean time to place over the successful episodes (s; `None` without one).
+    pub time_to_place_mean_s: Option<f64>,
+    /// 95th percentile of the time to place over the successful episodes (s).
+    pub time_to_place_p95_s: Option<f64>,
+    /// Mean object motion relative to the tool per episode (m).
+    pub object_motion_mean_m: f64,
+    /// Largest object motion of an episode (m).
+    pub object_motion_max_m: f64,
+    /// Mean over episodes of the peak seal utilisation.
+    pub peak_seal_mean: f64,
+    /// Largest seal utilisation seen.
+    pub peak_seal_max: f64,
+    /// Mean undiscounted return.
+    pub mean_return: f64,
+}
+
+impl OutcomeSummary {
+    /// Summarises `outcomes` under the name `driver`.
+    pub fn of(driver: &str, outcomes: &[EpisodeOutcome]) -> Self {
+        let n = outcomes.len().max(1) as f64;
+        let pct = |e: Ending| 100.0 * outcomes.iter().filter(|o| o.ending == e).count() as f64 / n;
+        let mut times: Vec<f64> = outcomes
+            .iter()
+            .filter(|o| o.ending == Ending::Success)
+            .map(|o| o.time_s)
+            .collect();
+        times.sort_by(f64::total_cmp);
+        let mean = |xs: &mut dyn Iterator<Item = f64>| xs.sum::<f64>() / n;
+        let max = |xs: &mut dyn Iterator<Item = f64>| xs.fold(0.0, f64::max);
+        OutcomeSummary {
+            driver: driver.to_string(),
+            episodes: outcomes.len(),
+            success_pct: pct(Ending::Success),
+            cup_detached_pct: pct(Ending::CupDetached),
+            dropped_pct: pct(Ending::Dropped),
+            unhealthy_pct: pct(Ending::Unhealthy),
+            timed_out_pct: pct(Ending::TimedOut),
+            time_to_place_mean_s: (!times.is_empty())
+                .then(|| times.iter().sum::<f64>() / times.len() as f64),
+            time_to_place_p95_s: percentile(&times, 0.95),
+            object_motion_mean_m: mean(&mut outcomes.iter().map(|o| o.object_motion_m)),
+            object_motion_max_m: max(&mut outcomes.iter().map(|o| o.object_motion_m)),
+            peak_seal_mean: mean(&mut outcomes.iter().map(|o| o.peak_seal_utilisation)),
+            peak_seal_max: max(&mut outcomes.iter().map(|o| o.peak_seal_utilisation)),
+            mean_return: mean(&mut outcomes.iter().map(|o| o.episode_return)),
+        }
+    }
+
+    /// The rows as a plain-text table.
+    pub fn table(rows: &[Self]) -> String {
+        let opt = |x: Option<f64>| x.map_or_else(|| "-".to_string(), |t| format!("{t:.2}"));
+        let mut s = format!(
+            "{:<16} {:>5} {:>7} {:>7} {:>7} {:>7} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6} {:>6} {:>8}\n",
+            "driver", "eps", "succ%", "cup%", "drop%", "unh%", "tout%", "place s", "p95 s",
+            "obj mean", "obj max", "seal", "seal^", "return"
+        );
+        for r in rows {
+            s += &format!(
+                "{:<16} {:>5} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>9} {:>8} {:>8.3}m {:>8.3}m \
+                 {:>6.2} {:>6.2} {:>8.2}\n",
+                r.driver,
+                r.episodes,
+                r.success_pct,
+                r.cup_detached_pct,
+                r.dropped_pct,
+                r.unhealthy_pct,
+                r.timed_out_pct,
+                opt(r.time_to_place_mean_s),
+                opt(r.time_to_place_p95_s),
+                r.object_motion_mean_m,
+                r.object_motion_max_m,
+                r.peak_seal_mean,
+                r.peak_seal_max,
+                r.mean_return
+            );
+        }
+        s
+    }
+}
+
+/// The `q` quantile of sorted `xs` (nearest rank), `None` when empty.
+fn percentile(xs: &[f64], q: f64) -> Option<f64> {
+    if xs.is_empty() {
+        return None;
+    }
+    let rank = ((q * xs.len() as f64).ceil() as usize).clamp(1, xs.len());
+    Some(xs[rank - 1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn outcome(ending: Ending, time_s: f64, motion: f64) -> EpisodeOutcome {
+        EpisodeOutcome {
+            ending,
+            time_s,
+            episode_return: 1.0,
+            object_motion_m: motion,
+            peak_seal_utilisation: motion,
+        }
+    }
+
+    #[test]
+    fn summary_counts_endings_and_times_only_successes() {
+        let outcomes = [
+            outcome(Ending::Success, 4.0, 0.1),
+            outcome(Ending::Success, 6.0, 0.3),
+            outcome(Ending::CupDetached, 1.0, 0.2),
+            outcome(Ending::TimedOut, 12.0, 0.2),
+        ];
+        let s = OutcomeSummary::of("x", &outcomes);
+        assert_eq!(
+            (s.success_pct, s.cup_detached_pct, s.timed_out_pct),
+            (50.0, 25.0, 25.0)
+        );
+        assert_eq!(s.time_to_place_mean_s, Some(5.0));
+        assert_eq!(s.time_to_place_p95_s, Some(6.0));
+        assert!((s.object_motion_mean_m - 0.2).abs() < 1e-12);
+        assert_eq!(s.object_motion_max_m, 0.3);
+        let none = OutcomeSummary::of("y", &outcomes[2..]);
+        assert_eq!(none.time_to_place_mean_s, None);
+        assert!(OutcomeSummary::table(&[s, none]).lines().count() == 3);
+    }
+}
