@@ -22,14 +22,19 @@ fn bench_sim_prints_json_rows_with_positive_throughput() {
         "0.1",
         "--workload",
         "motionless",
+        "--scene",
+        "reference,physical",
         "--json",
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     let rows: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
     let rows = rows.as_array().expect("a JSON array");
-    assert_eq!(rows.len(), 2);
-    for (row, envs) in rows.iter().zip([1, 3]) {
+    // Both scenes in the same run, one after the other.
+    assert_eq!(rows.len(), 4);
+    let scenes = ["reference", "reference", "physical", "physical"];
+    for ((row, envs), scene) in rows.iter().zip([1, 3, 1, 3]).zip(scenes) {
+        assert_eq!(row["scene"], scene);
         assert_eq!(row["envs"], envs);
         // 2 layers x 6 x 7 package particles + 4 cups x 24 ring particles.
         assert_eq!(row["particles"], 2 * 6 * 7 + 96);

@@ -183,3 +183,65 @@ fn bad_configs_and_run_folders_exit_with_code_2() {
     assert_eq!(not_a_run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&not_a_run.stderr).contains("not a run folder"));
 }
+
+#[test]
+fn transport_run_is_evaluated_beside_the_scripted_baseline() {
+    // The shipped transport config, shrunk: 2 copies on an 11 x 13 grid, 2 s episodes, 2 updates.
+    let root = env!("CARGO_MANIFEST_DIR");
+    let text = std::fs::read_to_string(format!("{root}/configs/transport.toml"))
+        .unwrap()
+        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
+        .replace(
+            "recordings = \"data/",
+            &format!("recordings = \"{root}/data/"),
+        )
+        .replace("num_envs = 16", "num_envs = 2")
+        .replace("total_steps = 245760", "total_steps = 16")
+        .replace("rollout_steps = 64", "rollout_steps = 8")
+        .replace("minibatches = 4", "minibatches = 2")
+        .replace("grid = [16, 19]", "grid = [11, 13]")
+        .replace("time_limit_s = 12.0", "time_limit_s = 2.0")
+        .replace("settled_variants = 16", "settled_variants = 1")
+        .replace("settle_s = 0.5", "settle_s = 0.1");
+    assert!(text.contains("total_steps = 16") && text.contains("time_limit_s = 2.0"));
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("transport.toml"), text).unwrap();
+    ok(&rlpkg(
+        &["train", "transport.toml", "--quiet", "--no-export"],
+        dir.path(),
+    ));
+    let out = ok(&rlpkg(
+        &[
+            "eval",
+            "runs/transport",
+            "--episodes",
+            "2",
+            "--scripted",
+            "1.0,1.5",
+            "--json",
+        ],
+        dir.path(),
+    ));
+    let report: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    let rows = report["rows"].as_array().expect("rows");
+    let drivers: Vec<&str> = rows.iter().map(|r| r["driver"].as_str().unwrap()).collect();
+    assert_eq!(drivers, ["policy", "scripted x1", "scripted x1.5"]);
+    for row in rows {
+        assert_eq!(row["episodes"], 2);
+        let total: f64 = [
+            "success_pct",
+            "cup_detached_pct",
+            "dropped_pct",
+            "unhealthy_pct",
+            "timed_out_pct",
+        ]
+        .iter()
+        .map(|k| row[k].as_f64().unwrap())
+        .sum();
+        assert!((total - 100.0).abs() < 1e-9, "{row}");
+    }
+    // A bad time scale is a user error.
+    let bad = rlpkg(&["eval", "runs/transport", "--scripted", "0"], dir.path());
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--scripted"));
+}

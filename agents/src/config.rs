@@ -674,8 +674,8 @@ epsilon = 1e-8
         std::fs::read_to_string(format!("{root}/configs/transport.toml"))
             .unwrap()
             .replace(
-                "scene = \"configs/physical.toml\"",
-                &format!("scene = \"{root}/configs/physical.toml\""),
+                "scene = \"configs/calibrated-si.toml\"",
+                &format!("scene = \"{root}/configs/calibrated-si.toml\""),
             )
             .replace(
                 "recordings = \"data/deformable-sim-real\"",

@@ -27,7 +27,8 @@ pub struct SimBenchArgs {
     /// Wall-clock seconds per measurement.
     #[arg(long, default_value_t = 3.0)]
     seconds: f64,
-    /// Scene preset (`reference` or `physical`) or a path to a scene TOML.
+    /// Scenes, comma-separated: a preset (`reference` or `physical`) or a path to a scene TOML.
+    /// Several scenes are measured one after the other in the same run, side by side.
     #[arg(long, default_value = "reference")]
     scene: String,
     /// Workloads, comma-separated: `motionless` (identical packages held still), `replay` (the
@@ -82,24 +83,34 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
             args.seconds
         )));
     }
-    let scene = match args.scene.as_str() {
-        "reference" | "physical" => rlpkg_sim::SceneConfig::preset(&args.scene),
-        path => rlpkg_sim::SceneConfig::load(std::path::Path::new(path)),
-    }
-    .map_err(input_error)?;
-    for grid in &grids {
-        // One environment's simulator, measured, scales the memory of the largest batch.
-        let one = rlpkg_sim::bench::bench_simulator(&scene, *grid, 1)
-            .map_err(|err| input_error(format!("--grid {}x{}: {err}", grid[0], grid[1])))?
-            .state_bytes();
-        for &n in &envs {
-            // Batches are stored in blocks of 8 environments (a lone environment in a 1-lane block).
-            let bytes = (n as f64 / 8.0).ceil() * 8.0 * one as f64;
-            rlpkg_agents::config::check_memory(
-                &format!("--grid {}x{} --envs {n}", grid[0], grid[1]),
-                bytes,
-            )
-            .map_err(input_error)?;
+    let scenes = args
+        .scene
+        .split(',')
+        .map(|name| {
+            let name = name.trim();
+            match name {
+                "reference" | "physical" => rlpkg_sim::SceneConfig::preset(name),
+                path => rlpkg_sim::SceneConfig::load(std::path::Path::new(path)),
+            }
+            .map(|scene| (name.to_string(), scene))
+            .map_err(input_error)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    for (_, scene) in &scenes {
+        for grid in &grids {
+            // One environment's simulator, measured, scales the memory of the largest batch.
+            let one = rlpkg_sim::bench::bench_simulator(scene, *grid, 1)
+                .map_err(|err| input_error(format!("--grid {}x{}: {err}", grid[0], grid[1])))?
+                .state_bytes();
+            for &n in &envs {
+                // Batches are stored in blocks of 8 environments (a lone environment in a 1-lane block).
+                let bytes = (n as f64 / 8.0).ceil() * 8.0 * one as f64;
+                rlpkg_agents::config::check_memory(
+                    &format!("--grid {}x{} --envs {n}", grid[0], grid[1]),
+                    bytes,
+                )
+                .map_err(input_error)?;
+            }
         }
     }
     let workloads = parse_list("workload", &args.workload, |s| {
@@ -108,34 +119,45 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
             .then(|| s.to_string())
     })
     .map_err(|err| input_error(format!("{err}; expected motionless, replay or command")))?;
-    let targets = if workloads.iter().any(|w| w == "replay") {
-        rlpkg_replay::workload::load_targets(&args.data, scene.disc.hold_at_recorded_start)
-            .map_err(|err| input_error(format!("--data {}: {err}", args.data.display())))?
-    } else {
-        Vec::new()
-    };
     let mut rows = Vec::new();
-    for grid in &grids {
-        for &n in &envs {
-            for workload in &workloads {
-                let what = format!(
-                    "--grid {}x{} --envs {n} --workload {workload}",
-                    grid[0], grid[1]
-                );
-                let row = measure_workload(workload, &scene, *grid, n, &args, &targets)
-                    .map_err(|err| input_error(format!("{what}: {err}")))?;
-                eprintln!(
-                    "{workload} grid {}x{} envs {n}: {:.2} M particle-substeps/s, {:.3} simulated s per wall s",
-                    grid[0],
-                    grid[1],
-                    row.particle_substeps_per_s / 1e6,
-                    row.simulated_s_per_wall_s
-                );
-                rows.push(row);
+    let mut table = String::new();
+    for (name, scene) in &scenes {
+        let targets = if workloads.iter().any(|w| w == "replay") {
+            rlpkg_replay::workload::load_targets(&args.data, scene.disc.hold_at_recorded_start)
+                .map_err(|err| input_error(format!("--data {}: {err}", args.data.display())))?
+        } else {
+            Vec::new()
+        };
+        let mut scene_rows = Vec::new();
+        for grid in &grids {
+            for &n in &envs {
+                for workload in &workloads {
+                    let what = format!(
+                        "--scene {name} --grid {}x{} --envs {n} --workload {workload}",
+                        grid[0], grid[1]
+                    );
+                    let row = measure_workload(workload, scene, *grid, n, &args, &targets)
+                        .map_err(|err| input_error(format!("{what}: {err}")))?;
+                    eprintln!(
+                        "{name}: {workload} grid {}x{} envs {n}: {:.2} M particle-substeps/s, {:.3} simulated s per wall s",
+                        grid[0],
+                        grid[1],
+                        row.particle_substeps_per_s / 1e6,
+                        row.simulated_s_per_wall_s
+                    );
+                    scene_rows.push(row);
+                }
             }
         }
+        table += &format!(
+            "scene {name}\n{}",
+            rlpkg_sim::bench::format_table(&scene_rows)
+        );
+        rows.extend(scene_rows.into_iter().map(|row| SceneRow {
+            scene: name.clone(),
+            row,
+        }));
     }
-    let table = rlpkg_sim::bench::format_table(&rows);
     let mut stdout = std::io::stdout().lock();
     if args.json {
         eprint!("{table}");
@@ -144,6 +166,14 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
         write!(stdout, "{table}")?;
     }
     Ok(())
+}
+
+/// A measurement and the scene it was taken on.
+#[derive(serde::Serialize)]
+struct SceneRow {
+    scene: String,
+    #[serde(flatten)]
+    row: rlpkg_sim::bench::BenchRow,
 }
 
 /// One measurement of `workload` (one of the names `run_sim` accepts).
