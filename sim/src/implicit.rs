@@ -460,6 +460,20 @@ mod tests {
         ]
     }
 
+    /// `triangle_vertex` on the test triangle (rest shape `DM`) with material `mat`, 1/h = 1.
+    fn test_triangle(x: [V; 3], v: [V; 3], corner: usize, mat: [f64; 3]) -> (V, Sym3<f64>) {
+        let inv_area = (DM[0][0] * DM[1][1] - DM[0][1] * DM[1][0]) * 2.0;
+        triangle_vertex(
+            x,
+            v,
+            corner,
+            DM,
+            (1.0 / inv_area, inv_area),
+            Membrane::new(mat),
+            1.0,
+        )
+    }
+
     fn triangle_energy(x: [V; 3], mat: [f64; 3]) -> f64 {
         let inv_area = (DM[0][0] * DM[1][1] - DM[0][1] * DM[1][0]) * 2.0;
         let a0 = 1.0 / inv_area;
@@ -473,7 +487,6 @@ mod tests {
 
     #[test]
     fn triangle_force_is_the_energy_gradient_and_its_stiffness_matches_finite_differences() {
-        let inv_area = (DM[0][0] * DM[1][1] - DM[0][1] * DM[1][0]) * 2.0;
         let mat = [2.0e3, 3.0e3, 0.0];
         let base = rest_triangle();
         // A stretched, sheared, bent triangle.
@@ -489,15 +502,7 @@ mod tests {
                 y[corner] = p;
                 y
             };
-            let (f, _) = triangle_vertex(
-                x,
-                zero,
-                corner,
-                DM,
-                (1.0 / inv_area, inv_area),
-                Membrane::new(mat),
-                1.0,
-            );
+            let (f, _) = test_triangle(x, zero, corner, mat);
             let fd = fd_force(|p| triangle_energy(at(p), mat), x[corner], 1e-6);
             assert_vec_close(f, fd, 1e-6);
         }
@@ -511,27 +516,8 @@ mod tests {
                 y[corner] = p;
                 y
             };
-            let force = |p: V| {
-                triangle_vertex(
-                    at(p),
-                    zero,
-                    corner,
-                    DM,
-                    (1.0 / inv_area, inv_area),
-                    Membrane::new(mat),
-                    1.0,
-                )
-                .0
-            };
-            let (_, k) = triangle_vertex(
-                x,
-                zero,
-                corner,
-                DM,
-                (1.0 / inv_area, inv_area),
-                Membrane::new(mat),
-                1.0,
-            );
+            let force = |p: V| test_triangle(at(p), zero, corner, mat).0;
+            let (_, k) = test_triangle(x, zero, corner, mat);
             assert_matrix_close(full(&k), fd_stiffness(force, x[corner], 1e-7), 1e-5);
             assert_psd(&k);
         }
@@ -539,7 +525,6 @@ mod tests {
 
     #[test]
     fn triangle_damping_ignores_rigid_rotation_and_resists_stretching() {
-        let inv_area = (DM[0][0] * DM[1][1] - DM[0][1] * DM[1][0]) * 2.0;
         let mat = [2.0e3, 3.0e3, 5.0];
         let x = rest_triangle();
         let still = [V3::zero(); 3];
@@ -548,45 +533,13 @@ mod tests {
         let spin = x.map(|p| w.cross(p));
         let stretch = x.map(|p| v([p.x * 2.0, 0.0, 0.0]));
         for corner in 0..3 {
-            let (f0, _) = triangle_vertex(
-                x,
-                still,
-                corner,
-                DM,
-                (1.0 / inv_area, inv_area),
-                Membrane::new(mat),
-                1.0,
-            );
-            let (fs, _) = triangle_vertex(
-                x,
-                spin,
-                corner,
-                DM,
-                (1.0 / inv_area, inv_area),
-                Membrane::new(mat),
-                1.0,
-            );
+            let (f0, _) = test_triangle(x, still, corner, mat);
+            let (fs, _) = test_triangle(x, spin, corner, mat);
             assert!((fs - f0).length() < 1e-9, "{fs:?} vs {f0:?}");
         }
         // Stretching along x: the far corner (1) is pulled back.
-        let (f, _) = triangle_vertex(
-            x,
-            stretch,
-            1,
-            DM,
-            (1.0 / inv_area, inv_area),
-            Membrane::new(mat),
-            1.0,
-        );
-        let (f0, _) = triangle_vertex(
-            x,
-            still,
-            1,
-            DM,
-            (1.0 / inv_area, inv_area),
-            Membrane::new(mat),
-            1.0,
-        );
+        let (f, _) = test_triangle(x, stretch, 1, mat);
+        let (f0, _) = test_triangle(x, still, 1, mat);
         assert!((f - f0).x < -1e-3, "{f:?} vs {f0:?}");
     }
 
