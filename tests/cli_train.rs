@@ -196,10 +196,9 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
             &format!("recordings = \"{root}/data/"),
         )
         .replace("num_envs = 16", "num_envs = 2")
-        .replace("total_steps = 245760", "total_steps = 16")
+        .replace("total_steps = 983040", "total_steps = 16")
         .replace("rollout_steps = 64", "rollout_steps = 8")
         .replace("minibatches = 4", "minibatches = 2")
-        .replace("grid = [16, 19]", "grid = [11, 13]")
         .replace("time_limit_s = 12.0", "time_limit_s = 2.0")
         .replace("settled_variants = 16", "settled_variants = 1")
         .replace("settle_s = 0.5", "settle_s = 0.1");
@@ -218,6 +217,8 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
             "2",
             "--scripted",
             "1.0,1.5",
+            "--recorded",
+            "medium",
             "--json",
         ],
         dir.path(),
@@ -225,7 +226,15 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     let report: serde_json::Value = serde_json::from_str(&out).expect("JSON");
     let rows = report["rows"].as_array().expect("rows");
     let drivers: Vec<&str> = rows.iter().map(|r| r["driver"].as_str().unwrap()).collect();
-    assert_eq!(drivers, ["policy", "scripted x1", "scripted x1.5"]);
+    assert_eq!(
+        drivers,
+        ["policy", "scripted x1", "scripted x1.5", "recorded medium"]
+    );
+    // The recorded baseline plays the medium-velocity recording of each path's tilt level.
+    let timings = report["recorded"][0]["timings"]
+        .as_array()
+        .expect("timings");
+    assert_eq!(timings[1], serde_json::json!(["HHHHM", "HHHMM"]));
     for row in rows {
         assert_eq!(row["episodes"], 2);
         let total: f64 = [
@@ -244,4 +253,10 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     let bad = rlpkg(&["eval", "runs/transport", "--scripted", "0"], dir.path());
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--scripted"));
+    let bad = rlpkg(
+        &["eval", "runs/transport", "--recorded", "fast"],
+        dir.path(),
+    );
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--recorded fast"));
 }

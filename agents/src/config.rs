@@ -673,10 +673,7 @@ epsilon = 1e-8
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
         std::fs::read_to_string(format!("{root}/configs/transport.toml"))
             .unwrap()
-            .replace(
-                "scene = \"configs/calibrated-si.toml\"",
-                &format!("scene = \"{root}/configs/calibrated-si.toml\""),
-            )
+            .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
             .replace(
                 "recordings = \"data/deformable-sim-real\"",
                 &format!("recordings = \"{root}/data/deformable-sim-real\""),

@@ -202,42 +202,45 @@ pub fn rollout(
     let mut next_frame = vec![0usize; n_targets];
     for &substep in &checkpoints {
         sim.step(substep - sim.substep());
+        // Frames closer together than one substep share it: all of them are compared there.
         for (t, target) in targets.iter().enumerate() {
-            let k = next_frame[t];
-            if k >= frame_substeps[t].len() || frame_substeps[t][k] != substep {
-                continue;
-            }
-            next_frame[t] += 1;
-            for (c, per_target) in outcomes.iter_mut().enumerate() {
-                let env = env_of[t][c];
-                if sim.is_frozen(env) {
-                    continue;
+            while let Some(&at) = frame_substeps[t].get(next_frame[t]) {
+                if at != substep {
+                    break;
                 }
-                let points: Vec<[f64; 3]> = sim
-                    .surface_points(env, &embeddings[t])
-                    .iter()
-                    .map(|p| p.map(|v| v as f64))
-                    .collect();
-                let disc = sim.disc(env);
-                let disc_position = disc.position.map(|v| v as f64);
-                per_target[t].loss.push_frame(
-                    k,
-                    &points,
-                    &target.markers[k],
-                    &disc_position,
-                    &target.object[k],
-                );
-                observer.frame(&FrameObservation {
-                    candidate: c,
-                    target: t,
-                    frame: k,
-                    simulated_points: &points,
-                    disc: &disc,
-                    simulator: &sim,
-                    env,
-                });
-                if next_frame[t] == frame_substeps[t].len() {
-                    sim.retire(env)?;
+                let k = next_frame[t];
+                next_frame[t] += 1;
+                for (c, per_target) in outcomes.iter_mut().enumerate() {
+                    let env = env_of[t][c];
+                    if sim.is_frozen(env) {
+                        continue;
+                    }
+                    let points: Vec<[f64; 3]> = sim
+                        .surface_points(env, &embeddings[t])
+                        .iter()
+                        .map(|p| p.map(|v| v as f64))
+                        .collect();
+                    let disc = sim.disc(env);
+                    let disc_position = disc.position.map(|v| v as f64);
+                    per_target[t].loss.push_frame(
+                        k,
+                        &points,
+                        &target.markers[k],
+                        &disc_position,
+                        &target.object[k],
+                    );
+                    observer.frame(&FrameObservation {
+                        candidate: c,
+                        target: t,
+                        frame: k,
+                        simulated_points: &points,
+                        disc: &disc,
+                        simulator: &sim,
+                        env,
+                    });
+                    if next_frame[t] == frame_substeps[t].len() {
+                        sim.retire(env)?;
+                    }
                 }
             }
         }
@@ -320,6 +323,27 @@ mod tests {
             batch[0][0].loss.mean_chamfer(),
             batch[1][0].loss.mean_chamfer()
         );
+    }
+
+    #[test]
+    fn frames_closer_together_than_a_substep_are_all_compared() {
+        // The recordings have ~240 frames per second; at 100 substeps per second several frames
+        // fall on one substep, and each of them must still be compared.
+        let root = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../configs/physical-implicit.toml"
+        );
+        let mut scene = load_scene(root, Some(0), Some(0.01)).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        scene.health.object_outside = false;
+        let model = Arc::new(Model::new(&scene).unwrap());
+        let target = Target::new(&recorded("HHLHL"), Some(0.3), false).unwrap();
+        let frame_interval = (target.times[1] - target.times[0]).abs();
+        assert!(frame_interval < 0.01, "frames {frame_interval} s apart");
+        let candidate = Candidate::of_scene(&scene);
+        let out = rollout(&model, std::slice::from_ref(&target), &[candidate], &mut ()).unwrap();
+        assert!(out[0][0].diverged.is_none());
+        assert_eq!(out[0][0].loss.frames.len(), target.times.len());
     }
 
     #[test]

@@ -50,6 +50,12 @@ pub struct EvalArgs {
     /// recorded high-velocity path played that many times as fast).
     #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.25, 1.5], conflicts_with_all = ["params", "policy"])]
     pub scripted: Vec<f64>,
+    /// Transport runs: velocity levels of the recorded baselines evaluated beside the policy (the
+    /// timing of the low, medium or high-velocity recording of the episode's tilt level, played
+    /// along the episode's path); `none` for none.
+    #[arg(long, value_delimiter = ',', default_values_t = ["low".to_string(), "medium".to_string(), "high".to_string()],
+          conflicts_with_all = ["params", "policy"])]
+    pub recorded: Vec<String>,
     /// Print a JSON summary on standard output.
     #[arg(long)]
     pub json: bool,
@@ -96,6 +102,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             episodes,
             args.seed,
             &args.scripted,
+            &args.recorded,
             args.json,
         );
     }

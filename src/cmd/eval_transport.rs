@@ -5,7 +5,9 @@ use std::path::Path;
 
 use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
 use rlpkg_agents::{AgentError, Trainer};
-use rlpkg_env::transport::{run_episodes, OutcomeSummary, TransportConfig, ID};
+use rlpkg_env::transport::{
+    recorded_timings, run_episodes, OutcomeSummary, TransportConfig, TransportPath, ID,
+};
 use rlpkg_env::{EnvError, Transport};
 use serde::Serialize;
 
@@ -18,7 +20,17 @@ struct TransportReport {
     update: usize,
     global_step: u64,
     seed: u64,
+    /// Recorded baselines: velocity level, and for each path the recording whose timing it plays.
+    recorded: Vec<RecordedBaseline>,
     rows: Vec<OutcomeSummary>,
+}
+
+/// The recordings one recorded baseline takes its timing from.
+#[derive(Serialize)]
+struct RecordedBaseline {
+    velocity: String,
+    /// `path id -> recording id` for each configured path.
+    timings: Vec<(String, String)>,
 }
 
 /// Whether `run` holds a transport run (its configuration names the transport environment).
@@ -26,16 +38,30 @@ pub fn is_transport_run(trainer: &Trainer) -> bool {
     trainer.config().run.env == ID
 }
 
-/// Evaluates the policy of `trainer` (loaded from `run`) and the scripted baseline at each of
-/// `scales` over `episodes` randomised episodes from `seed`; prints the table (or JSON).
+/// Evaluates the policy of `trainer` (loaded from `run`), the scripted baseline at each of
+/// `scales` and the recorded baseline of each velocity level in `recorded` over `episodes`
+/// randomised episodes from `seed`; prints the table (or JSON).
 pub fn run(
     run: &Path,
     trainer: &Trainer,
     episodes: usize,
     seed: u64,
     scales: &[f64],
+    recorded: &[String],
     json: bool,
 ) -> anyhow::Result<()> {
+    let recorded: Vec<&str> = match recorded {
+        [none] if none == "none" => Vec::new(),
+        levels => levels.iter().map(String::as_str).collect(),
+    };
+    if let Some(bad) = recorded
+        .iter()
+        .find(|v| !["low", "medium", "high"].contains(v))
+    {
+        return Err(input_error(format!(
+            "--recorded {bad}: expected velocity levels low, medium, high (comma-separated) or none"
+        )));
+    }
     if let Some(bad) = scales
         .iter()
         .find(|s| !(s.is_finite() && **s > 0.0 && **s <= 10.0))
@@ -69,11 +95,41 @@ pub fn run(
             run_episodes::<EnvError>(&mut env, seed, |env, _| Ok(env.scripted_actions(scale)))?;
         rows.push(OutcomeSummary::of(&format!("scripted x{scale}"), &outcomes));
     }
+    let mut baselines = Vec::new();
+    for velocity in recorded {
+        let timings =
+            recorded_timings(&transport, velocity, &config.source).map_err(input_error)?;
+        // The same episodes, with time to finish the slowest recording (the low-velocity ones
+        // take 19-22 s): the time limit does not change what an episode draws.
+        let mut long = transport.clone();
+        long.time_limit_s = long.time_limit_s.max(longest_timing_s(&timings) * 1.25);
+        let mut env = Transport::new(long, episodes, &config.source).map_err(input_error)?;
+        let outcomes =
+            run_episodes::<EnvError>(
+                &mut env,
+                seed,
+                |env, _| Ok(env.timed_actions(&timings, 1.0)),
+            )?;
+        rows.push(OutcomeSummary::of(
+            &format!("recorded {velocity}"),
+            &outcomes,
+        ));
+        baselines.push(RecordedBaseline {
+            velocity: velocity.to_string(),
+            timings: transport
+                .paths
+                .iter()
+                .cloned()
+                .zip(timings.iter().map(|t| t.id.clone()))
+                .collect(),
+        });
+    }
     let report = TransportReport {
         run: run.display().to_string(),
         update: trainer.update,
         global_step: trainer.global_step,
         seed,
+        recorded: baselines,
         rows,
     };
     if json {
@@ -84,7 +140,23 @@ pub fn run(
              scripted xS = the recorded high-velocity path played S times as fast",
             report.run, report.update, report.global_step, episodes, seed
         );
+        for b in &report.recorded {
+            let pairs: Vec<String> = b
+                .timings
+                .iter()
+                .map(|(path, timing)| format!("{path} with {timing}'s timing"))
+                .collect();
+            println!("recorded {}: {}", b.velocity, pairs.join(", "));
+        }
         print!("{}", OutcomeSummary::table(&report.rows));
     }
     Ok(())
+}
+
+/// Duration of the longest recording in `timings` (s).
+fn longest_timing_s(timings: &[TransportPath]) -> f64 {
+    timings
+        .iter()
+        .map(|t| t.recorded_duration_s)
+        .fold(0.0, f64::max)
 }

@@ -452,11 +452,10 @@ fn asymmetric_resume_continues_exactly_like_an_uninterrupted_run() {
 fn tiny_transport_text() -> String {
     crate::config::tests::transport_config_text()
         .replace("num_envs = 16", "num_envs = 2")
-        .replace("total_steps = 245760", "total_steps = 48")
-        .replace("checkpoint_every = 40", "checkpoint_every = 1")
+        .replace("total_steps = 983040", "total_steps = 48")
+        .replace("checkpoint_every = 80", "checkpoint_every = 1")
         .replace("rollout_steps = 64", "rollout_steps = 8")
         .replace("minibatches = 4", "minibatches = 2")
-        .replace("grid = [16, 19]", "grid = [11, 13]")
         .replace("settled_variants = 16", "settled_variants = 1")
         .replace("settle_s = 0.5", "settle_s = 0.1")
 }

@@ -39,7 +39,8 @@ pub struct EpisodeOutcome {
 
 /// Runs the first episode of every copy of `env` (copy `i` is seeded from `seed` as
 /// [`VecEnv::reset`] does) with `act` choosing the actions from the environment and its actor
-/// observations, and returns one outcome per copy.
+/// observations, and returns one outcome per copy. Finished copies are retired
+/// ([`Transport::set_retire_finished`]), so each block of copies costs its slowest episode.
 pub fn run_episodes<E: From<EnvError>>(
     env: &mut Transport,
     seed: u64,
@@ -61,6 +62,7 @@ pub fn run_episodes<E: From<EnvError>>(
     let width = names.len();
     let dt = env.control_interval_s();
     let mut buffers = env.buffers();
+    env.set_retire_finished(true);
     env.try_reset(seed, &mut buffers)?;
     let mut outcomes: Vec<Option<EpisodeOutcome>> = vec![None; n];
     let mut running = vec![
@@ -103,6 +105,7 @@ pub fn run_episodes<E: From<EnvError>>(
             }
         }
     }
+    env.set_retire_finished(false);
     Ok(outcomes.into_iter().flatten().collect())
 }
 

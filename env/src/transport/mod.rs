@@ -299,6 +299,10 @@ pub struct Transport {
     info: Vec<f32>,
     substeps_per_step: u64,
     dt: f64,
+    /// Evaluation mode: a finished copy is retired instead of restarted.
+    retire_finished: bool,
+    /// Copies retired since the last reset (evaluation mode).
+    retired: Vec<bool>,
 }
 
 fn sim_error(e: impl std::fmt::Display) -> EnvError {
@@ -365,6 +369,72 @@ pub fn load_paths(
                 .map_err(|e| data_error(format!("transport.paths: {e}")))?;
             TransportPath::from_recording(&trajectory, target.placement)
                 .map_err(|e| data_error(format!("transport.paths: {e}")))
+        })
+        .collect()
+}
+
+/// Recording levels in order (`low`, `medium`, `high`), for nearest-level matching.
+const LEVELS: [&str; 3] = ["low", "medium", "high"];
+
+/// For each of `config.paths`, the recording of velocity level `velocity` (`low`, `medium` or
+/// `high`) whose timing a recorded baseline plays along that path ([`Transport::timed_actions`]):
+/// the one with the path's placement tilt level and object mass level, else the nearest tilt
+/// level (the dataset has no low-velocity recording at the high tilt), then the nearest mass.
+pub fn recorded_timings(
+    config: &TransportConfig,
+    velocity: &str,
+    source: &str,
+) -> Result<Vec<TransportPath>, EnvError> {
+    let data_error = |message: String| EnvError::ConfigParse {
+        file: source.to_string(),
+        message,
+    };
+    let level = |x: &Option<String>| {
+        x.as_deref()
+            .and_then(|v| LEVELS.iter().position(|l| *l == v))
+    };
+    let wanted = LEVELS.iter().position(|l| *l == velocity).ok_or_else(|| {
+        data_error(format!(
+            "velocity level `{velocity}`: expected low, medium or high"
+        ))
+    })?;
+    let dataset = rlpkg_mocap::Dataset::open(Path::new(&config.recordings))
+        .map_err(|e| data_error(format!("transport.recordings: {e}")))?;
+    config
+        .paths
+        .iter()
+        .map(|id| {
+            let entry = |id: &str| dataset.entries.iter().find(|e| e.id == id);
+            let path_entry = entry(id)
+                .ok_or_else(|| data_error(format!("transport.paths: no recording `{id}`")))?;
+            let (tilt, mass) = (level(&path_entry.orientation), level(&path_entry.mass));
+            let distance = |a: Option<usize>, b: Option<usize>| match (a, b) {
+                (Some(a), Some(b)) => a.abs_diff(b),
+                _ => LEVELS.len(),
+            };
+            let chosen = dataset
+                .entries
+                .iter()
+                .filter(|e| level(&e.velocity) == Some(wanted))
+                .min_by_key(|e| {
+                    (
+                        distance(level(&e.orientation), tilt),
+                        distance(level(&e.mass), mass),
+                        e.id.clone(),
+                    )
+                })
+                .ok_or_else(|| {
+                    data_error(format!(
+                        "transport.recordings: no {velocity}-velocity recording"
+                    ))
+                })?;
+            let trajectory = dataset
+                .load(&chosen.id)
+                .map_err(|e| data_error(format!("transport.recordings: {e}")))?;
+            let target = rlpkg_replay::Target::new(&trajectory, Some(0.0), false)
+                .map_err(|e| data_error(format!("transport.recordings: {e}")))?;
+            TransportPath::from_recording(&trajectory, target.placement)
+                .map_err(|e| data_error(format!("transport.recordings: {e}")))
         })
         .collect()
 }
@@ -547,7 +617,22 @@ impl Transport {
             materials,
             substeps_per_step,
             dt,
+            retire_finished: false,
+            retired: vec![false; num_envs],
         })
+    }
+
+    /// Evaluation mode (`true`): a copy whose episode ends is not restarted but retired until the
+    /// next reset. It then keeps its final observation, gets reward 0 and is neither terminated
+    /// nor truncated again, and its simulator lane stops: a block of copies that have all
+    /// finished costs nothing, so a batch of one-episode copies runs as fast as its slowest block.
+    pub fn set_retire_finished(&mut self, on: bool) {
+        self.retire_finished = on;
+    }
+
+    /// Whether copy `env` is retired (evaluation mode, episode over).
+    pub fn is_retired(&self, env: usize) -> bool {
+        self.retired[env]
     }
 
     /// The recorded paths.
@@ -582,13 +667,23 @@ impl Transport {
     /// control interval, and no tilt offset (the nominal orientation already follows the recorded
     /// tilt profile).
     pub fn scripted_actions(&self, time_scale: f64) -> Vec<f32> {
+        self.timed_actions(&self.paths, time_scale)
+    }
+
+    /// As [`Transport::scripted_actions`], with the progress over time of `timings[p]` (another
+    /// recording, e.g. the medium-velocity one of the same tilt level; see [`recorded_timings`])
+    /// scaled to the length of path `p`: the recorded timing played along the episode's path.
+    pub fn timed_actions(&self, timings: &[TransportPath], time_scale: f64) -> Vec<f32> {
         let t = self.dt;
         self.lanes
             .iter()
             .flat_map(|lane| {
                 let path = &self.paths[lane.path];
+                let timing = &timings[lane.path];
+                let stretch = path.length_m / timing.length_m;
                 let elapsed = lane.steps as f64 * t;
-                let ahead = path.recorded_progress(time_scale * (elapsed + t)) - lane.progress;
+                let planned = timing.recorded_progress(time_scale * (elapsed + t)) * stretch;
+                let ahead = planned - lane.progress;
                 [(ahead.max(0.0) / t) as f32, 0.0, 0.0]
             })
             .collect()
@@ -937,7 +1032,9 @@ impl VecEnv for Transport {
         }
         let start_states = self.states.clone();
         for env in 0..n {
-            self.command(env, &actions[env * 3..env * 3 + 3])?;
+            if !self.retired[env] {
+                self.command(env, &actions[env * 3..env * 3 + 3])?;
+            }
         }
         self.sim.step(self.substeps_per_step);
         self.health.clear();
@@ -950,6 +1047,12 @@ impl VecEnv for Transport {
         let cups = self.model.num_cups();
         let mut finished = Vec::new();
         for (env, start) in start_states.iter().enumerate() {
+            if self.retired[env] {
+                out.rewards[env] = 0.0;
+                out.terminated[env] = false;
+                out.truncated[env] = false;
+                continue;
+            }
             let state = self.states[env];
             let mut failure = None;
             for event in self.seal.iter().filter(|e| e.env == env) {
@@ -1024,6 +1127,14 @@ impl VecEnv for Transport {
             } else {
                 self.observe_into(env, out, false);
             }
+        }
+        if self.retire_finished {
+            for &env in &finished {
+                self.sim.retire(env).map_err(sim_error)?;
+                self.retired[env] = true;
+                self.observe_into(env, out, false);
+            }
+            return Ok(());
         }
         for &env in &finished {
             self.start_episode(env)?;
@@ -1122,6 +1233,7 @@ impl VecEnv for Transport {
             *rng = rng_from_words(words.try_into().expect("RNG_WORDS words"));
         }
         self.variants = variants;
+        self.retired.fill(false);
         self.sim.read_states(&mut self.states).map_err(sim_error)?;
         self.sim
             .read_cup_loads(&mut self.loads)
@@ -1142,6 +1254,7 @@ impl Transport {
     /// [`VecEnv::reset`] that reports a failure to settle the packages instead of panicking.
     pub fn try_reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
         self.settle_variants(seed)?;
+        self.retired.fill(false);
         for env in 0..self.num_envs() {
             self.rngs[env] = env_rng(seed, env);
             self.start_episode(env)?;

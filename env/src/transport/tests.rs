@@ -392,3 +392,97 @@ fn run_episodes_reports_every_copy_once_with_its_ending_and_time() {
     assert_eq!(summary.timed_out_pct, 100.0);
     assert_eq!(summary.time_to_place_mean_s, None);
 }
+
+#[test]
+fn retired_copies_stop_while_the_others_run_on_unchanged() {
+    // Copy 0 is driven over-fast on a weak seal and fails; copy 1 is held still. With finished
+    // copies retired, copy 0 keeps its final observation and earns nothing from then on, and
+    // copy 1 runs exactly as it does when finished copies restart.
+    let text = test_table()
+        .replace("settled_variants = 2", "settled_variants = 1")
+        .replace("time_limit_s = 12.0", "time_limit_s = 2.0");
+    let config = config(&text);
+    let mut scene = load_scene(&config, "test.toml").unwrap();
+    scene.seal.vacuum_kpa = 7.0;
+    let paths = load_paths(&config, scene.disc.hold_at_recorded_start, "test.toml").unwrap();
+    let make = || Transport::with_scene(config.clone(), scene.clone(), paths.clone(), 2).unwrap();
+    let (mut retiring, mut restarting) = (make(), make());
+    retiring.set_retire_finished(true);
+    let (mut a, mut b) = (retiring.buffers(), restarting.buffers());
+    retiring.try_reset(5, &mut a).unwrap();
+    restarting.try_reset(5, &mut b).unwrap();
+    let dim = retiring.spec().observation.dim();
+    let mut failed: Option<(usize, Vec<f32>)> = None;
+    for step in 0..40 {
+        let tilt = if step % 2 == 0 { 0.35 } else { -0.35 };
+        let actions = [0.945, tilt, -tilt, 0.0, 0.0, 0.0];
+        retiring.step(&actions, &mut a).unwrap();
+        restarting.step(&actions, &mut b).unwrap();
+        assert_eq!(a.rewards[1], b.rewards[1], "step {step}");
+        assert_eq!(a.done(1), b.done(1), "step {step}");
+        if a.done(1) {
+            assert_eq!(a.final_obs[dim..], b.final_obs[dim..], "step {step}");
+        } else {
+            assert_eq!(a.obs[dim..], b.obs[dim..], "step {step}");
+        }
+        match &failed {
+            None if a.done(0) => {
+                assert!(a.terminated[0] && b.terminated[0], "step {step}");
+                assert!(retiring.is_retired(0) && !restarting.is_retired(0));
+                // Its row holds the final observation, not a new episode's first one.
+                assert_eq!(a.obs[..dim], a.final_obs[..dim]);
+                assert_ne!(a.obs[..dim], b.obs[..dim]);
+                failed = Some((step, a.obs[..dim].to_vec()));
+            }
+            Some((_, final_obs)) => {
+                assert!(!a.done(0) && a.rewards[0] == 0.0, "step {step}");
+                assert_eq!(&a.obs[..dim], &final_obs[..], "step {step}");
+            }
+            None => {}
+        }
+    }
+    let (step, _) = failed.expect("copy 0 failed");
+    assert!(step < 39, "failed at step {step}");
+    // The held copy reached the time limit in both.
+    assert!(a.truncated[1] && b.truncated[1]);
+    // A reset brings the retired copy back.
+    retiring.try_reset(5, &mut a).unwrap();
+    assert!(!retiring.is_retired(0));
+}
+
+#[test]
+fn recorded_timings_match_the_tilt_level_and_play_along_the_path() {
+    let config = config(&test_table());
+    let pick = |velocity: &str| -> Vec<String> {
+        recorded_timings(&config, velocity, "test.toml")
+            .unwrap()
+            .into_iter()
+            .map(|t| t.id)
+            .collect()
+    };
+    // Paths HHMHL, HHHHM, HHHHH: tilt low / medium / high, masses medium / high / high.
+    assert_eq!(pick("medium"), ["HHMML", "HHHMM", "HHMMH"]);
+    assert_eq!(pick("high"), ["HHMHL", "HHHHM", "HHHHH"]);
+    // No low-velocity recording has the high tilt: the nearest (medium) tilt stands in.
+    assert_eq!(pick("low"), ["HHMLL", "HHHLM", "HHHLM"]);
+    assert!(recorded_timings(&config, "fast", "test.toml").is_err());
+    // The paths' own timings are the scripted baseline; a slower recording asks for less speed.
+    let mut t = env(&test_table(), 3);
+    let mut out = t.buffers();
+    t.try_reset(2, &mut out).unwrap();
+    let own = recorded_timings(&config, "high", "test.toml").unwrap();
+    let low = recorded_timings(&config, "low", "test.toml").unwrap();
+    let speed = |a: &[f32]| a.iter().step_by(3).sum::<f32>();
+    let (mut slow_total, mut scripted_total) = (0.0, 0.0);
+    for _ in 0..10 {
+        let scripted = t.scripted_actions(1.0);
+        assert_eq!(t.timed_actions(&own, 1.0), scripted);
+        slow_total += speed(&t.timed_actions(&low, 1.0));
+        scripted_total += speed(&scripted);
+        t.step(&scripted, &mut out).unwrap();
+    }
+    assert!(
+        slow_total < 0.7 * scripted_total,
+        "{slow_total} vs {scripted_total}"
+    );
+}
