@@ -219,6 +219,8 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
             "1.0,1.5",
             "--recorded",
             "medium",
+            "--trajectories",
+            "test",
             "--json",
         ],
         dir.path(),
@@ -235,6 +237,36 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
         .as_array()
         .expect("timings");
     assert_eq!(timings[1], serde_json::json!(["HHHHM", "HHHMM"]));
+    // Each held-out recording's own conditions: the policy and the recording's own timing, one
+    // episode each, and a plot per recording beside the randomised episode 0's.
+    let held_out: Vec<&str> = report["trajectories"]
+        .as_array()
+        .expect("trajectories")
+        .iter()
+        .map(|r| r["driver"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        held_out,
+        [
+            "HHHMM policy",
+            "HHHMM recorded",
+            "HHLMM policy",
+            "HHLMM recorded",
+            "HHMMM policy",
+            "HHMMM recorded"
+        ]
+    );
+    for name in [
+        "episode-0.png",
+        "episode-0.gif",
+        "episode-0-end.png",
+        "HHHMM.png",
+        "HHLMM.png",
+        "HHMMM.png",
+    ] {
+        let plot = dir.path().join("runs/transport/eval").join(name);
+        assert!(std::fs::metadata(&plot).unwrap().len() > 10_000, "{plot:?}");
+    }
     for row in rows {
         assert_eq!(row["episodes"], 2);
         let total: f64 = [
@@ -253,6 +285,12 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     let bad = rlpkg(&["eval", "runs/transport", "--scripted", "0"], dir.path());
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--scripted"));
+    let bad = rlpkg(
+        &["eval", "runs/transport", "--trajectories", "heldout"],
+        dir.path(),
+    );
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--trajectories heldout"));
     let bad = rlpkg(
         &["eval", "runs/transport", "--recorded", "fast"],
         dir.path(),

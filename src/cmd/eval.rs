@@ -56,6 +56,10 @@ pub struct EvalArgs {
     #[arg(long, value_delimiter = ',', default_values_t = ["low".to_string(), "medium".to_string(), "high".to_string()],
           conflicts_with_all = ["params", "policy"])]
     pub recorded: Vec<String>,
+    /// Transport runs: also evaluate the policy on the own conditions of the recordings of this
+    /// split (`test`: HHLMM, HHMMM, HHHMM; `train`; `all`), beside the recording's own timing.
+    #[arg(long, conflicts_with_all = ["params", "policy"])]
+    pub trajectories: Option<String>,
     /// Print a JSON summary on standard output.
     #[arg(long)]
     pub json: bool,
@@ -96,15 +100,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     };
     let trainer = Trainer::resume(run).map_err(as_input)?;
     if eval_transport::is_transport_run(&trainer) {
-        return eval_transport::run(
-            run,
-            &trainer,
-            episodes,
-            args.seed,
-            &args.scripted,
-            &args.recorded,
-            args.json,
-        );
+        return eval_transport::run(run, &trainer, episodes, &args);
     }
     drop(trainer);
     let summary = evaluate_run(run, episodes, args.seed).map_err(as_input)?;

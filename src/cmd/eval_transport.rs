@@ -3,15 +3,20 @@
 
 use std::path::Path;
 
+use anyhow::Context;
+
 use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
 use rlpkg_agents::{AgentError, Trainer};
 use rlpkg_env::transport::{
-    recorded_timings, run_episodes, OutcomeSummary, TransportConfig, TransportPath, ID,
+    load_paths, load_scene, recorded_timings, run_traced_episodes, OutcomeSummary, TracePoint,
+    TransportConfig, TransportPath, ID,
 };
-use rlpkg_env::{EnvError, Transport};
+use rlpkg_env::{EnvError, Transport, VecEnv};
 use serde::Serialize;
 
+use crate::cmd::eval::EvalArgs;
 use crate::error::input_error;
+use crate::render::plot::write_transport_plot;
 
 /// What `rlpkg eval` prints for a transport run.
 #[derive(Serialize)]
@@ -23,6 +28,10 @@ struct TransportReport {
     /// Recorded baselines: velocity level, and for each path the recording whose timing it plays.
     recorded: Vec<RecordedBaseline>,
     rows: Vec<OutcomeSummary>,
+    /// `--trajectories`: the policy and the recording itself on each recording's own conditions.
+    trajectories: Vec<OutcomeSummary>,
+    /// Plots written (PNG).
+    plots: Vec<String>,
 }
 
 /// The recordings one recorded baseline takes its timing from.
@@ -38,19 +47,13 @@ pub fn is_transport_run(trainer: &Trainer) -> bool {
     trainer.config().run.env == ID
 }
 
-/// Evaluates the policy of `trainer` (loaded from `run`), the scripted baseline at each of
-/// `scales` and the recorded baseline of each velocity level in `recorded` over `episodes`
-/// randomised episodes from `seed`; prints the table (or JSON).
-pub fn run(
-    run: &Path,
-    trainer: &Trainer,
-    episodes: usize,
-    seed: u64,
-    scales: &[f64],
-    recorded: &[String],
-    json: bool,
-) -> anyhow::Result<()> {
-    let recorded: Vec<&str> = match recorded {
+/// Evaluates the policy of `trainer` (loaded from `run`), the scripted baseline at each time
+/// scale of `args.scripted` and the recorded baseline of each velocity level in `args.recorded`
+/// over `episodes` randomised episodes from `args.seed` (and `args.trajectories`' recordings);
+/// prints the table (or JSON), writes plots, an animation and `summary.json` to `run/eval/`.
+pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> anyhow::Result<()> {
+    let (seed, scales, json) = (args.seed, &args.scripted, args.json);
+    let recorded: Vec<&str> = match args.recorded.as_slice() {
         [none] if none == "none" => Vec::new(),
         levels => levels.iter().map(String::as_str).collect(),
     };
@@ -84,15 +87,25 @@ pub fn run(
     )
     .map_err(input_error)?;
     let make = || Transport::new(transport.clone(), episodes, &config.source);
+    let held_out = match args.trajectories.as_deref() {
+        Some(split) => Some(held_out_configs(&transport, split, &config.source)?),
+        None => None,
+    };
     let mut rows = Vec::new();
+    // Episode 0 of the policy and of each recorded baseline, plotted together.
+    let mut first_episode: Vec<(String, Vec<TracePoint>)> = Vec::new();
     let mut env = make().map_err(input_error)?;
-    let outcomes =
-        run_episodes::<AgentError>(&mut env, seed, |_, obs| Ok(policy.act(obs, episodes)))?;
+    let (outcomes, mut traces) =
+        run_traced_episodes::<AgentError>(&mut env, seed, &[0], |_, obs| {
+            Ok(policy.act(obs, episodes))
+        })?;
     rows.push(OutcomeSummary::of("policy", &outcomes));
+    first_episode.push(("policy".into(), traces.remove(0)));
     for &scale in scales {
         let mut env = make().map_err(input_error)?;
-        let outcomes =
-            run_episodes::<EnvError>(&mut env, seed, |env, _| Ok(env.scripted_actions(scale)))?;
+        let (outcomes, _) = run_traced_episodes::<EnvError>(&mut env, seed, &[], |env, _| {
+            Ok(env.scripted_actions(scale))
+        })?;
         rows.push(OutcomeSummary::of(&format!("scripted x{scale}"), &outcomes));
     }
     let mut baselines = Vec::new();
@@ -104,16 +117,15 @@ pub fn run(
         let mut long = transport.clone();
         long.time_limit_s = long.time_limit_s.max(longest_timing_s(&timings) * 1.25);
         let mut env = Transport::new(long, episodes, &config.source).map_err(input_error)?;
-        let outcomes =
-            run_episodes::<EnvError>(
-                &mut env,
-                seed,
-                |env, _| Ok(env.timed_actions(&timings, 1.0)),
-            )?;
+        let (outcomes, mut traces) =
+            run_traced_episodes::<EnvError>(&mut env, seed, &[0], |env, _| {
+                Ok(env.timed_actions(&timings, 1.0))
+            })?;
         rows.push(OutcomeSummary::of(
             &format!("recorded {velocity}"),
             &outcomes,
         ));
+        first_episode.push((format!("recorded {velocity}"), traces.remove(0)));
         baselines.push(RecordedBaseline {
             velocity: velocity.to_string(),
             timings: transport
@@ -124,6 +136,48 @@ pub fn run(
                 .collect(),
         });
     }
+    let out = run.join("eval");
+    std::fs::create_dir_all(&out)
+        .map_err(|e| input_error(format!("{}: cannot create: {e}", out.display())))?;
+    let mut plots = Vec::new();
+    let plot = out.join("episode-0.png");
+    write_transport_plot(
+        &plot,
+        &format!("randomised episode 0 (seed {seed})"),
+        &first_episode,
+    )?;
+    plots.push(plot.display().to_string());
+    let medium = recorded_timings(&transport, "medium", &config.source).map_err(input_error)?;
+    let (animation, still) = (out.join("episode-0.gif"), out.join("episode-0-end.png"));
+    render_beside_medium(
+        (&animation, &still),
+        &transport,
+        &config.source,
+        &medium,
+        seed,
+        &policy,
+    )?;
+    plots.extend([&animation, &still].map(|p| p.display().to_string()));
+    let mut trajectory_rows = Vec::new();
+    for (id, held) in held_out.into_iter().flatten() {
+        let mut drivers = Vec::new();
+        let mut env = Transport::new(held.clone(), 1, &config.source).map_err(input_error)?;
+        let (outcomes, mut traces) =
+            run_traced_episodes::<AgentError>(&mut env, seed, &[0], |_, obs| {
+                Ok(policy.act(obs, 1))
+            })?;
+        trajectory_rows.push(OutcomeSummary::of(&format!("{id} policy"), &outcomes));
+        drivers.push(("policy".to_string(), traces.remove(0)));
+        let (outcomes, mut traces) =
+            run_traced_episodes::<EnvError>(&mut env, seed, &[0], |env, _| {
+                Ok(env.scripted_actions(1.0))
+            })?;
+        trajectory_rows.push(OutcomeSummary::of(&format!("{id} recorded"), &outcomes));
+        drivers.push((format!("recording {id}"), traces.remove(0)));
+        let plot = out.join(format!("{id}.png"));
+        write_transport_plot(&plot, &format!("{id}: its mass, tilt and poses"), &drivers)?;
+        plots.push(plot.display().to_string());
+    }
     let report = TransportReport {
         run: run.display().to_string(),
         update: trainer.update,
@@ -131,24 +185,41 @@ pub fn run(
         seed,
         recorded: baselines,
         rows,
+        trajectories: trajectory_rows,
+        plots,
     };
+    let mut text = format!(
+        "{} (update {}, {} steps): {} randomised episodes from seed {} per driver; \
+         scripted xS = the recorded high-velocity path played S times as fast\n",
+        report.run, report.update, report.global_step, episodes, seed
+    );
+    for b in &report.recorded {
+        let pairs: Vec<String> = b
+            .timings
+            .iter()
+            .map(|(path, timing)| format!("{path} with {timing}'s timing"))
+            .collect();
+        text += &format!("recorded {}: {}\n", b.velocity, pairs.join(", "));
+    }
+    text += &OutcomeSummary::table(&report.rows);
+    if !report.trajectories.is_empty() {
+        text += "recordings' own conditions (mass, placement tilt, pick and place poses; no \
+                 randomisation): the policy and the recording's own timing along its path\n";
+        text += &OutcomeSummary::table(&report.trajectories);
+    }
+    let summary = out.join("summary.json");
+    let report_json = serde_json::to_string_pretty(&report)?;
+    crate::files::write_atomic(&summary, report_json.as_bytes())?;
+    text += &format!(
+        "plots: {}\nsummary: {}\n",
+        report.plots.join(", "),
+        summary.display()
+    );
     if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        println!("{report_json}");
+        eprint!("{text}");
     } else {
-        println!(
-            "{} (update {}, {} steps): {} randomised episodes from seed {} per driver; \
-             scripted xS = the recorded high-velocity path played S times as fast",
-            report.run, report.update, report.global_step, episodes, seed
-        );
-        for b in &report.recorded {
-            let pairs: Vec<String> = b
-                .timings
-                .iter()
-                .map(|(path, timing)| format!("{path} with {timing}'s timing"))
-                .collect();
-            println!("recorded {}: {}", b.velocity, pairs.join(", "));
-        }
-        print!("{}", OutcomeSummary::table(&report.rows));
+        print!("{text}");
     }
     Ok(())
 }
@@ -159,4 +230,177 @@ fn longest_timing_s(timings: &[TransportPath]) -> f64 {
         .iter()
         .map(|t| t.recorded_duration_s)
         .fold(0.0, f64::max)
+}
+
+/// For each recording of `split` (`test`, `train` or `all`) of the run's dataset, the run's
+/// transport configuration set to that recording's own conditions: its path, object mass and
+/// placement tilt, no jitter and no randomisation, and time to finish at its own pace.
+fn held_out_configs(
+    base: &TransportConfig,
+    split: &str,
+    source: &str,
+) -> anyhow::Result<Vec<(String, TransportConfig)>> {
+    let split_filter = match split {
+        "all" => None,
+        other => Some(
+            other
+                .parse::<rlpkg_mocap::Split>()
+                .map_err(|e| input_error(format!("--trajectories {other}: {e} (or `all`)")))?,
+        ),
+    };
+    let dataset = rlpkg_mocap::Dataset::open(Path::new(&base.recordings))
+        .map_err(|e| input_error(format!("transport.recordings: {e}")))?;
+    let scene = load_scene(base, source).map_err(input_error)?;
+    dataset
+        .ids(split_filter)
+        .into_iter()
+        .map(|id| {
+            let mut config = base.clone();
+            config.paths = vec![id.clone()];
+            let path = load_paths(&config, scene.disc.hold_at_recorded_start, source)
+                .map_err(input_error)?
+                .remove(0);
+            let tilt = path.recorded_final_tilt_rad.to_degrees();
+            config.time_limit_s = config.time_limit_s.max(path.recorded_duration_s * 1.25);
+            config.settled_variants = 1;
+            let r = &mut config.randomization;
+            r.target_tilt_deg = [tilt, tilt];
+            r.goal_jitter_m = 0.0;
+            r.start_jitter_m = 0.0;
+            let p = &mut r.package;
+            p.object_mass_kg = None;
+            p.disc_mass_scale = None;
+            p.object_offset_m = 0.0;
+            p.object_tilt_deg = 0.0;
+            p.package_yaw_deg = [0.0, 0.0];
+            p.param_scale
+                .values_mut()
+                .for_each(|range| *range = [1.0, 1.0]);
+            Ok((id, config))
+        })
+        .collect()
+}
+
+/// Package, cups and disc of copy 0 at one control step, for the animation.
+struct Snapshot {
+    time_s: f32,
+    /// Package particles, then cup particles.
+    positions: Vec<[f32; 3]>,
+    disc: rlpkg_sim::DiscState,
+}
+
+/// Runs copy 0's first episode (the randomised episode 0 of `seed`) with `act`, capturing every
+/// control step until it ends.
+fn play<E: From<EnvError>>(
+    env: &mut Transport,
+    seed: u64,
+    mut act: impl FnMut(&Transport, &[f32]) -> Result<Vec<f32>, E>,
+) -> Result<Vec<Snapshot>, E> {
+    let capture = |env: &Transport| Snapshot {
+        time_s: env.trace_point(0).time_s as f32,
+        positions: env.simulator().particle_positions(0),
+        disc: env.simulator().disc(0),
+    };
+    let mut buffers = env.buffers();
+    env.set_retire_finished(true);
+    env.try_reset(seed, &mut buffers)?;
+    let mut snapshots = vec![capture(env)];
+    loop {
+        let actions = act(env, &buffers.obs)?;
+        env.step(&actions, &mut buffers)?;
+        snapshots.push(capture(env));
+        if buffers.done(0) {
+            return Ok(snapshots);
+        }
+    }
+}
+
+/// Animates the randomised episode 0 of `seed` driven by the policy beside the same episode
+/// driven by the medium-velocity recording's timing (`medium`): same package, same time axis
+/// (GIF at `path`), with a still of the moment the policy's episode ends.
+fn render_beside_medium(
+    (path, still): (&Path, &Path),
+    transport: &TransportConfig,
+    source: &str,
+    medium: &[TransportPath],
+    seed: u64,
+    policy: &TrainedPolicy,
+) -> anyhow::Result<()> {
+    use crate::render::{write_png_side_by_side, Bounds, Disc, Frame, GifWriter, View};
+    let mut env = Transport::new(transport.clone(), 1, source).map_err(input_error)?;
+    let by_policy = play::<AgentError>(&mut env, seed, |_, obs| Ok(policy.act(obs, 1)))?;
+    let mut slow = transport.clone();
+    slow.time_limit_s = slow.time_limit_s.max(longest_timing_s(medium) * 1.25);
+    let mut env = Transport::new(slow, 1, source).map_err(input_error)?;
+    let by_recording =
+        play::<EnvError>(&mut env, seed, |env, _| Ok(env.timed_actions(medium, 1.0)))?;
+    let model = env.simulator().model().clone();
+    let package = model.num_package;
+    let triangles: Vec<[u32; 3]> = model.package_triangles.iter().map(|t| t.idx).collect();
+    let (radius, thickness) = (model.disc.radius, 2.0 * model.disc.half_height);
+    let mut scene = Bounds::empty();
+    by_policy
+        .iter()
+        .chain(&by_recording)
+        .flat_map(|s| &s.positions)
+        .for_each(|&p| scene.include(p));
+    let mut close_up = Bounds::empty();
+    by_policy[0].positions[..package]
+        .iter()
+        .for_each(|&p| close_up.include(p));
+    let (low, high) = (close_up.min, close_up.max);
+    close_up.include([low[0], low[1] - 0.08, low[2]]);
+    close_up.include(high);
+    let (scene, close_up) = (scene.padded(0.03), close_up.padded(0.02));
+    const PANEL: (u32, u32) = (640, 360);
+    let view = View::new(&scene, &close_up, PANEL.0, PANEL.1);
+    let interval = by_policy
+        .get(1)
+        .map_or(0.05, |s| s.time_s - by_policy[0].time_s);
+    let mut gif = GifWriter::create(path, (2 * PANEL.0, PANEL.1), interval)
+        .with_context(|| format!("writing {}", path.display()))?;
+    let path_id = env.conditions(0).path_id;
+    let timing = transport
+        .paths
+        .iter()
+        .position(|p| *p == path_id)
+        .unwrap_or(0);
+    let titles = [
+        "policy".to_string(),
+        format!("medium-velocity recording {}'s timing", medium[timing].id),
+    ];
+    let steps = by_policy.len().max(by_recording.len());
+    for k in 0..steps {
+        let snapshots = [&by_policy, &by_recording].map(|s| &s[k.min(s.len() - 1)]);
+        let frames: Vec<Frame> = snapshots
+            .iter()
+            .zip(&titles)
+            .map(|(s, title)| Frame {
+                title,
+                time: s.time_s,
+                package: &s.positions[..package],
+                triangles: &triangles,
+                cups: &s.positions[package..],
+                disc: Some(Disc {
+                    center: s.disc.position,
+                    rotation: s.disc.orientation,
+                    radius,
+                    thickness,
+                }),
+                recorded_markers: &[],
+                simulated_markers: &[],
+                recorded_object: None,
+            })
+            .collect();
+        let pair = [(&frames[0], &view), (&frames[1], &view)];
+        if k + 1 == by_policy.len() {
+            write_png_side_by_side(still, &pair)
+                .with_context(|| format!("writing {}", still.display()))?;
+        }
+        gif.add_side_by_side(&pair)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    gif.finish()
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
 }

@@ -4,7 +4,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use super::{render_rgb, temporary_path, Frame, RenderError, View};
+use super::{render_rgb, render_side_by_side, temporary_path, Frame, RenderError, View};
 
 /// Quantiser speed 1..=30: higher is faster and coarser; 10 keeps shading smooth at a few ms per frame.
 const QUANTISER_SPEED: i32 = 10;
@@ -58,8 +58,26 @@ impl GifWriter {
             )));
         }
         let rgb = render_rgb(frame, view)?;
+        self.append_rgb(&rgb)
+    }
+
+    /// Renders `frames` side by side, each through its view, and appends them as one frame: the
+    /// views must have the GIF's height and their widths must add up to its width.
+    pub fn add_side_by_side(&mut self, frames: &[(&Frame, &View)]) -> Result<(), RenderError> {
+        let (rgb, size) = render_side_by_side(frames)?;
+        if size != (u32::from(self.size.0), u32::from(self.size.1)) {
+            return Err(RenderError::Draw(format!(
+                "side-by-side frames of {}x{} in a {}x{} GIF",
+                size.0, size.1, self.size.0, self.size.1
+            )));
+        }
+        self.append_rgb(&rgb)
+    }
+
+    /// Quantises an RGB picture of the GIF's size and appends it.
+    fn append_rgb(&mut self, rgb: &[u8]) -> Result<(), RenderError> {
         let mut gif_frame =
-            gif::Frame::from_rgb_speed(self.size.0, self.size.1, &rgb, QUANTISER_SPEED);
+            gif::Frame::from_rgb_speed(self.size.0, self.size.1, rgb, QUANTISER_SPEED);
         gif_frame.delay = self.delay_centiseconds;
         let path = &self.path;
         let write_error = |message: String| RenderError::Write {

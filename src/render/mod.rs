@@ -133,9 +133,40 @@ pub fn render_rgb(frame: &Frame, view: &View) -> Result<Vec<u8>, RenderError> {
     draw::render(frame, view)
 }
 
+/// Renders `frames` side by side, each through its view (all of the same height), into one packed
+/// RGB buffer; returns it with its size.
+pub fn render_side_by_side(
+    frames: &[(&Frame, &View)],
+) -> Result<(Vec<u8>, (u32, u32)), RenderError> {
+    let height = frames.first().map_or(0, |(_, view)| view.size().1);
+    if frames.iter().any(|(_, view)| view.size().1 != height) {
+        return Err(RenderError::Draw(
+            "side-by-side views differ in height".into(),
+        ));
+    }
+    let width: u32 = frames.iter().map(|(_, view)| view.size().0).sum();
+    let images = frames
+        .iter()
+        .map(|(frame, view)| render_rgb(frame, view))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut rgb = Vec::with_capacity(3 * width as usize * height as usize);
+    for row in 0..height as usize {
+        for ((_, view), image) in frames.iter().zip(&images) {
+            let stride = 3 * view.size().0 as usize;
+            rgb.extend_from_slice(&image[row * stride..(row + 1) * stride]);
+        }
+    }
+    Ok((rgb, (width, height)))
+}
+
 /// Writes `frame` as a PNG at `path` (atomically: temporary file in the same folder, then rename).
 pub fn write_png(path: &Path, frame: &Frame, view: &View) -> Result<(), RenderError> {
-    let pixels = render_rgb(frame, view)?;
+    write_png_side_by_side(path, &[(frame, view)])
+}
+
+/// Writes `frames` side by side (see [`render_side_by_side`]) as one PNG at `path`.
+pub fn write_png_side_by_side(path: &Path, frames: &[(&Frame, &View)]) -> Result<(), RenderError> {
+    let (pixels, size) = render_side_by_side(frames)?;
     let write_error = |message: String| RenderError::Write {
         path: path.to_path_buf(),
         message,
@@ -143,9 +174,9 @@ pub fn write_png(path: &Path, frame: &Frame, view: &View) -> Result<(), RenderEr
     // The PNG encoder picks the format from the extension, so the temporary name ends in `.png` too.
     let temporary = temporary_path(path, ".png");
     let result = (|| {
-        let mut backend = BitMapBackend::new(&temporary, view.size());
+        let mut backend = BitMapBackend::new(&temporary, size);
         backend
-            .blit_bitmap((0, 0), view.size(), &pixels)
+            .blit_bitmap((0, 0), size, &pixels)
             .map_err(|err| write_error(err.to_string()))?;
         backend
             .present()

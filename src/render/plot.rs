@@ -5,15 +5,25 @@ use std::path::Path;
 
 use anyhow::Context;
 use plotters::prelude::*;
+use rlpkg_env::transport::TracePoint;
 use rlpkg_replay::loss::TrajectoryLoss;
 use rlpkg_replay::Target;
 
 /// Picture size of the plots.
 const PLOT_SIZE: (u32, u32) = (900, 600);
 
-/// Draws into a temporary PNG beside `path`, then renames it into place.
+/// Draws a [`PLOT_SIZE`] picture into a temporary PNG beside `path`, then renames it into place.
 fn write_plot(
     path: &Path,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    write_plot_sized(path, PLOT_SIZE, draw)
+}
+
+/// As [`write_plot`] with the picture's size in pixels.
+fn write_plot_sized(
+    path: &Path,
+    size: (u32, u32),
     draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
     super::ensure_font()?;
@@ -23,7 +33,7 @@ fn write_plot(
         .unwrap_or_default();
     let temporary = path.with_file_name(format!(".{name}.{}.tmp.png", std::process::id()));
     let result: anyhow::Result<()> = (|| {
-        let area = BitMapBackend::new(&temporary, PLOT_SIZE).into_drawing_area();
+        let area = BitMapBackend::new(&temporary, size).into_drawing_area();
         area.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
         draw(&area)?;
         area.present().map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -152,6 +162,89 @@ pub fn write_loss_plot(path: &Path, target: &Target, loss: &TrajectoryLoss) -> a
 fn extent(values: impl Iterator<Item = f64>) -> (f64, f64) {
     values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
         (lo.min(v), hi.max(v))
+    })
+}
+
+/// Colours of the drivers in a transport plot, in order.
+const DRIVER_COLOURS: [RGBColor; 6] = [
+    RGBColor(200, 30, 30),
+    RGBColor(30, 80, 200),
+    RGBColor(30, 150, 60),
+    RGBColor(150, 60, 170),
+    RGBColor(230, 130, 20),
+    RGBColor(90, 90, 90),
+];
+
+/// One transport episode per driver: commanded path speed, tool tilt, the object's displacement
+/// relative to the tool since pick, and the peak seal utilisation, over time (four panels).
+pub fn write_transport_plot(
+    path: &Path,
+    title: &str,
+    drivers: &[(String, Vec<TracePoint>)],
+) -> anyhow::Result<()> {
+    type Quantity = (&'static str, fn(&TracePoint, &TracePoint) -> f64);
+    let quantities: [Quantity; 4] = [
+        ("path speed (m/s)", |p, _| p.path_speed_m_s),
+        ("tool tilt (deg)", |p, _| p.tool_tilt_deg),
+        ("object displacement in tool (cm)", |p, start| {
+            let d: f64 = (0..3)
+                .map(|k| (p.object_in_tool_m[k] - start.object_in_tool_m[k]).powi(2))
+                .sum();
+            100.0 * d.sqrt()
+        }),
+        ("peak seal utilisation", |p, _| p.peak_seal_utilisation),
+    ];
+    let t_max = drivers
+        .iter()
+        .flat_map(|(_, trace)| trace.iter().map(|p| p.time_s))
+        .fold(1e-3, f64::max);
+    write_plot_sized(path, (1200, 800), |area| {
+        let area = area
+            .titled(title, ("sans-serif", 22))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        for (panel, (label, value)) in area.split_evenly((2, 2)).iter().zip(quantities) {
+            let series: Vec<Vec<(f64, f64)>> = drivers
+                .iter()
+                .map(|(_, trace)| {
+                    let start = trace.first().copied();
+                    trace
+                        .iter()
+                        .zip(std::iter::repeat(start))
+                        .filter_map(|(p, s)| s.map(|s| (p.time_s, value(p, &s))))
+                        .filter(|(_, v)| v.is_finite())
+                        .collect()
+                })
+                .collect();
+            let y_max = series.iter().flatten().map(|p| p.1).fold(1e-3, f64::max) * 1.1;
+            let mut chart = ChartBuilder::on(panel)
+                .margin(12)
+                .x_label_area_size(35)
+                .y_label_area_size(50)
+                .build_cartesian_2d(0.0..t_max, 0.0..y_max)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            chart
+                .configure_mesh()
+                .x_desc("time since pick (s)")
+                .y_desc(label)
+                .draw()
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            for (k, ((driver, _), points)) in drivers.iter().zip(series).enumerate() {
+                let colour = DRIVER_COLOURS[k % DRIVER_COLOURS.len()];
+                chart
+                    .draw_series(LineSeries::new(points, colour.stroke_width(2)))
+                    .map_err(|e| anyhow::anyhow!("{e}"))?
+                    .label(driver.as_str())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperRight)
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+        }
+        Ok(())
     })
 }
 

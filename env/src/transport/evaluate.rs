@@ -37,6 +37,23 @@ pub struct EpisodeOutcome {
     pub peak_seal_utilisation: f64,
 }
 
+/// The tool and the object of one copy at one control step (see [`Transport::trace_point`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TracePoint {
+    /// Time since the episode's start (s).
+    pub time_s: f64,
+    /// Commanded speed along the path (m/s).
+    pub path_speed_m_s: f64,
+    /// The tool's measured speed (m/s).
+    pub tool_speed_m_s: f64,
+    /// Angle of the tool's axis from its orientation at pick (degrees).
+    pub tool_tilt_deg: f64,
+    /// The object's centre in the tool frame (m).
+    pub object_in_tool_m: [f64; 3],
+    /// Largest seal utilisation of any cup.
+    pub peak_seal_utilisation: f64,
+}
+
 /// Runs the first episode of every copy of `env` (copy `i` is seeded from `seed` as
 /// [`VecEnv::reset`] does) with `act` choosing the actions from the environment and its actor
 /// observations, and returns one outcome per copy. Finished copies are retired
@@ -44,8 +61,19 @@ pub struct EpisodeOutcome {
 pub fn run_episodes<E: From<EnvError>>(
     env: &mut Transport,
     seed: u64,
-    mut act: impl FnMut(&Transport, &[f32]) -> Result<Vec<f32>, E>,
+    act: impl FnMut(&Transport, &[f32]) -> Result<Vec<f32>, E>,
 ) -> Result<Vec<EpisodeOutcome>, E> {
+    Ok(run_traced_episodes(env, seed, &[], act)?.0)
+}
+
+/// As [`run_episodes`], and the trace of each copy in `traced` (its start, then every control
+/// step until its episode ends).
+pub fn run_traced_episodes<E: From<EnvError>>(
+    env: &mut Transport,
+    seed: u64,
+    traced: &[usize],
+    mut act: impl FnMut(&Transport, &[f32]) -> Result<Vec<f32>, E>,
+) -> Result<(Vec<EpisodeOutcome>, Vec<Vec<TracePoint>>), E> {
     let n = env.num_envs();
     let names = info_names();
     let column = |name: &str| names.iter().position(|x| x == name).expect("info name");
@@ -64,6 +92,8 @@ pub fn run_episodes<E: From<EnvError>>(
     let mut buffers = env.buffers();
     env.set_retire_finished(true);
     env.try_reset(seed, &mut buffers)?;
+    let mut traces: Vec<Vec<TracePoint>> =
+        traced.iter().map(|&c| vec![env.trace_point(c)]).collect();
     let mut outcomes: Vec<Option<EpisodeOutcome>> = vec![None; n];
     let mut running = vec![
         EpisodeOutcome {
@@ -78,6 +108,11 @@ pub fn run_episodes<E: From<EnvError>>(
     while outcomes.iter().any(Option::is_none) {
         let actions = act(env, &buffers.obs)?;
         env.step(&actions, &mut buffers)?;
+        for (trace, &copy) in traces.iter_mut().zip(traced) {
+            if outcomes[copy].is_none() {
+                trace.push(env.trace_point(copy));
+            }
+        }
         let info = env.info();
         for copy in 0..n {
             if outcomes[copy].is_some() {
@@ -106,7 +141,7 @@ pub fn run_episodes<E: From<EnvError>>(
         }
     }
     env.set_retire_finished(false);
-    Ok(outcomes.into_iter().flatten().collect())
+    Ok((outcomes.into_iter().flatten().collect(), traces))
 }
 
 /// One row of the evaluation table: a driver's outcomes over the same episodes as the others.

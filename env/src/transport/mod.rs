@@ -51,7 +51,9 @@ pub use config::{
     TransportRandomization, RECORDED_PEAK_ACCEL_M_S2, RECORDED_PEAK_ANGULAR_SPEED_RAD_S,
     RECORDED_PEAK_SPEED_M_S,
 };
-pub use evaluate::{run_episodes, Ending, EpisodeOutcome, OutcomeSummary};
+pub use evaluate::{
+    run_episodes, run_traced_episodes, Ending, EpisodeOutcome, OutcomeSummary, TracePoint,
+};
 pub use path::TransportPath;
 pub use reward::{RewardTerms, StepOutcome, REWARD_TERM_NAMES};
 
@@ -630,9 +632,34 @@ impl Transport {
         self.retire_finished = on;
     }
 
+    /// The simulator the copies run on (particle positions, the disc, ... for pictures).
+    pub fn simulator(&self) -> &Simulator {
+        &self.sim
+    }
+
     /// Whether copy `env` is retired (evaluation mode, episode over).
     pub fn is_retired(&self, env: usize) -> bool {
         self.retired[env]
+    }
+
+    /// Copy `env`'s tool and object now, for plots of an episode.
+    pub fn trace_point(&self, env: usize) -> TracePoint {
+        let lane = &self.lanes[env];
+        let state = &self.states[env];
+        let cups = self.model.num_cups();
+        let start_axis = self.paths[lane.path].start_orientation * DVec3::Y;
+        let axis = quat(state.tool_orientation) * DVec3::Y;
+        TracePoint {
+            time_s: lane.steps as f64 * self.dt,
+            path_speed_m_s: lane.path_speed,
+            tool_speed_m_s: v3(state.tool_velocity).length(),
+            tool_tilt_deg: axis.dot(start_axis).clamp(-1.0, 1.0).acos().to_degrees(),
+            object_in_tool_m: v3(state.disc_in_tool.position).to_array(),
+            peak_seal_utilisation: self.loads[env * cups..(env + 1) * cups]
+                .iter()
+                .map(|c| c.utilisation as f64)
+                .fold(0.0, f64::max),
+        }
     }
 
     /// The recorded paths.

@@ -373,11 +373,20 @@ fn run_episodes_reports_every_copy_once_with_its_ending_and_time() {
         &test_table().replace("time_limit_s = 12.0", "time_limit_s = 1.0"),
         3,
     );
-    let outcomes = run_episodes::<EnvError>(&mut t, 5, |t, _| {
+    let (outcomes, traces) = run_traced_episodes::<EnvError>(&mut t, 5, &[1], |t, _| {
         Ok(vec![0.0; t.num_envs() * t.spec().action.dim()])
     })
     .unwrap();
     assert_eq!(outcomes.len(), 3);
+    // The traced copy: its start and each of its 20 steps; the tool held level and still.
+    let trace = &traces[0];
+    assert_eq!(trace.len(), 21);
+    assert!((trace[20].time_s - 1.0).abs() < 1e-6);
+    for p in trace {
+        assert_eq!(p.path_speed_m_s, 0.0);
+        assert!(p.tool_tilt_deg < 1.0 && p.tool_speed_m_s < 0.05, "{p:?}");
+    }
+    assert!(trace.iter().any(|p| p.peak_seal_utilisation > 0.0));
     for o in &outcomes {
         assert_eq!(o.ending, Ending::TimedOut, "{o:?}");
         assert!((o.time_s - 1.0).abs() < 1e-6, "{o:?}");
