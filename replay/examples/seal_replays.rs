@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use rlpkg_mocap::dataset::Dataset;
 use rlpkg_replay::Target;
-use rlpkg_sim::{CupLoad, EnvSpec, Model, SceneConfig, Simulator, ToolSample, ToolTrajectory};
+use rlpkg_sim::{CupLoad, EpisodeSpec, Model, SceneConfig, Simulator, ToolSample, ToolTrajectory};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -46,7 +46,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let duration = seconds.unwrap_or(tool.duration()).min(tool.duration());
         durations.push(duration);
         ids.push(id);
-        specs.push(EnvSpec {
+        specs.push(EpisodeSpec {
             placement: target.placement,
             params: scene.params,
             object_mass_kg: target.object_mass_kg,

@@ -163,7 +163,7 @@ pub fn rollout(
         for (c, candidate) in candidates.iter().enumerate() {
             env_of[t][c] = specs.len();
             slot_of_env.push((c, t));
-            specs.push(targets[t].env_spec(candidate.params, Some(candidate.disc_mass_scale)));
+            specs.push(targets[t].episode_spec(candidate.params, Some(candidate.disc_mass_scale)));
         }
     }
     let mut sim = Simulator::new(model.clone(), specs)?;

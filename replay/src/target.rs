@@ -7,7 +7,7 @@
 use std::sync::Arc;
 
 use rlpkg_mocap::Trajectory;
-use rlpkg_sim::{EnvSpec, Params, Placement, SceneConfig, SimError, ToolSample, ToolTrajectory};
+use rlpkg_sim::{EpisodeSpec, Params, Placement, SceneConfig, SimError, ToolSample, ToolTrajectory};
 
 use crate::ReplayError;
 
@@ -119,8 +119,8 @@ impl Target {
 
     /// The simulator environment that replays this recording with material `params`; the disc mass
     /// scale is the scene's when `disc_mass_scale` is `None`.
-    pub fn env_spec(&self, params: Params, disc_mass_scale: Option<f32>) -> EnvSpec {
-        EnvSpec {
+    pub fn episode_spec(&self, params: Params, disc_mass_scale: Option<f32>) -> EpisodeSpec {
+        EpisodeSpec {
             placement: self.placement,
             params,
             object_mass_kg: self.object_mass_kg,

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use rlpkg_mocap::Dataset;
-use rlpkg_sim::{EnvSpec, Model, Params, Randomization, SceneConfig, Simulator};
+use rlpkg_sim::{EpisodeSpec, Model, Params, Randomization, SceneConfig, Simulator};
 
 use crate::target::Target;
 use crate::ReplayError;
@@ -37,10 +37,10 @@ pub fn replay_specs(
     envs: usize,
     randomization: &Randomization,
     seed: u64,
-) -> Vec<EnvSpec> {
+) -> Vec<EpisodeSpec> {
     (0..envs)
         .map(|env| {
-            let base = targets[env % targets.len()].env_spec(params, None);
+            let base = targets[env % targets.len()].episode_spec(params, None);
             randomization.apply(&base, &mut env_rng(seed, env))
         })
         .collect()
@@ -105,7 +105,7 @@ mod tests {
             let [low, high] = OBJECT_MASS_RANGE_KG;
             assert!((low..=high).contains(&spec.object_mass_kg), "env {env}");
         }
-        let masses = |specs: &[EnvSpec]| specs.iter().map(|s| s.object_mass_kg).collect::<Vec<_>>();
+        let masses = |specs: &[EpisodeSpec]| specs.iter().map(|s| s.object_mass_kg).collect::<Vec<_>>();
         // Different environments draw different masses; the same seed gives the same batch, and
         // a smaller batch is a prefix of a larger one.
         let m = masses(&specs);

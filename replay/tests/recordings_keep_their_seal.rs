@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use rlpkg_mocap::dataset::Dataset;
 use rlpkg_replay::Target;
-use rlpkg_sim::{CupLoad, EnvSpec, Model, SceneConfig, Simulator};
+use rlpkg_sim::{CupLoad, EpisodeSpec, Model, SceneConfig, Simulator};
 
 #[test]
 fn no_recording_loses_a_cup_in_the_physical_scene() {
@@ -23,7 +23,7 @@ fn no_recording_loses_a_cup_in_the_physical_scene() {
     .unwrap();
     let ids = data.ids(None);
     assert_eq!(ids.len(), 18);
-    let specs: Vec<EnvSpec> = ids
+    let specs: Vec<EpisodeSpec> = ids
         .iter()
         .map(|id| {
             let target = Target::new(
@@ -32,7 +32,7 @@ fn no_recording_loses_a_cup_in_the_physical_scene() {
                 scene.disc.hold_at_recorded_start,
             )
             .unwrap();
-            EnvSpec {
+            EpisodeSpec {
                 placement: target.placement,
                 params: scene.params,
                 object_mass_kg: target.object_mass_kg,

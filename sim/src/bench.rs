@@ -13,7 +13,7 @@ use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
 use crate::{
-    EnvSpec, Model, Placement, SceneConfig, SimError, Simulator, ToolCommand, ToolLimits,
+    EpisodeSpec, Model, Placement, SceneConfig, SimError, Simulator, ToolCommand, ToolLimits,
     ToolTrajectory,
 };
 
@@ -94,7 +94,7 @@ pub fn bench_simulator(
         [cup_point[0] as f64, 0.45, cup_point[2] as f64],
         [0.0, 0.0, 0.0, 1.0],
     ));
-    let spec = EnvSpec {
+    let spec = EpisodeSpec {
         placement: Placement::new(origin, cup_point, centre),
         params: config.params,
         object_mass_kg: 0.57,

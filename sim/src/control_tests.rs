@@ -8,7 +8,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::{
-    CupLoad, EnvObservation, EnvSpec, HealthReason, Model, NoSealReason, Placement, Randomization,
+    CupLoad, EnvObservation, EpisodeSpec, HealthReason, Model, NoSealReason, Placement, Randomization,
     SceneConfig, SealEventKind, Simulator, ToolCommand, ToolTrajectory,
 };
 
@@ -20,11 +20,11 @@ fn scene(grid: [usize; 2]) -> SceneConfig {
     c
 }
 
-fn spec(config: &SceneConfig, cup_height: f32) -> EnvSpec {
+fn spec(config: &SceneConfig, cup_height: f32) -> EpisodeSpec {
     let size = config.package.size_m;
     let centre = [size[1] / 2.0, 0.5, size[0] / 2.0];
     let cup_point = [centre[0], centre[1] + cup_height, centre[2]];
-    EnvSpec {
+    EpisodeSpec {
         placement: Placement::new([0.0, 0.5, 0.0], cup_point, centre),
         params: config.params,
         object_mass_kg: 0.5,
@@ -51,7 +51,7 @@ fn seconds(sim: &Simulator, s: f64) -> u64 {
     (s / sim.dt() as f64).round() as u64
 }
 
-fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EnvSpec> {
+fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EpisodeSpec> {
     let randomization = Randomization {
         object_mass_kg: Some([0.3, 0.7]),
         object_offset_m: 0.02,
@@ -210,7 +210,7 @@ fn commanded_tool_reaches_its_pose_and_limits_are_reported() {
 }
 
 /// Package and disc weight (N).
-fn weight(config: &SceneConfig, spec: &EnvSpec) -> f32 {
+fn weight(config: &SceneConfig, spec: &EpisodeSpec) -> f32 {
     let film = config.package.film_mass_kg.unwrap();
     (film + spec.object_mass_kg) * -config.integrator.gravity_m_s2
 }

@@ -7,7 +7,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::{
-    EnvSpec, HealthReason, Model, Placement, Randomization, SceneConfig, Simulator, Solver,
+    EpisodeSpec, HealthReason, Model, Placement, Randomization, SceneConfig, Simulator, Solver,
     ToolCommand, ToolTrajectory,
 };
 
@@ -28,11 +28,11 @@ fn explicit(grid: [usize; 2]) -> SceneConfig {
 }
 
 /// The package 0.5 m above the ground, cups `cup_height` above its centre, a 0.5 kg disc.
-fn spec(config: &SceneConfig, cup_height: f32) -> EnvSpec {
+fn spec(config: &SceneConfig, cup_height: f32) -> EpisodeSpec {
     let size = config.package.size_m;
     let centre = [size[1] / 2.0, 0.5, size[0] / 2.0];
     let cup_point = [centre[0], centre[1] + cup_height, centre[2]];
-    EnvSpec {
+    EpisodeSpec {
         placement: Placement::new([0.0, 0.5, 0.0], cup_point, centre),
         params: config.params,
         object_mass_kg: 0.5,
@@ -270,7 +270,7 @@ fn the_disc_stays_inside_through_a_fast_lift_and_a_60_degree_tilt() {
     assert!(sim.health_events().is_empty(), "{:?}", sim.health_events());
 }
 
-fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EnvSpec> {
+fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EpisodeSpec> {
     let randomization = Randomization {
         object_mass_kg: Some([0.3, 0.7]),
         object_offset_m: 0.02,

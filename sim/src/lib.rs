@@ -6,7 +6,7 @@
 //!   M x N layers joined by a perimeter seam band), membrane triangles with rest `Dm`, interior
 //!   bending edges with rest angles, cup rings, the disc's shape. Built from a [`SceneConfig`]
 //!   (`configs/reference.toml` or `configs/physical.toml`, or [`SceneConfig::preset`]).
-//! * [`EnvSpec`]: what differs per environment: [`Placement`] (package origin, tool cup point,
+//! * [`EpisodeSpec`]: what differs per environment: [`Placement`] (package origin, tool cup point,
 //!   disc position), material [`Params`], object mass, tool trajectory.
 //! * [`Simulator`]: the batched state (positions/velocities of every particle and the disc of
 //!   every environment, struct-of-arrays in blocks of [`LANES`] environments, see the `block`
@@ -15,7 +15,7 @@
 //! # Typical use
 //! ```
 //! use std::sync::Arc;
-//! use rlpkg_sim::{EnvSpec, Model, Placement, SceneConfig, Simulator, ToolTrajectory};
+//! use rlpkg_sim::{EpisodeSpec, Model, Placement, SceneConfig, Simulator, ToolTrajectory};
 //!
 //! let mut config = SceneConfig::preset("reference")?;
 //! config.package.grid = [11, 13]; // coarse grid for the example
@@ -23,7 +23,7 @@
 //! let markers = [[0.10, 0.25, -0.55], [0.40, 0.25, -0.30]]; // initial marker positions
 //! let placement = Placement::from_markers(&markers, [0.25, 0.26, -0.42], [0.25, 0.2, -0.42])?;
 //! let tool = ToolTrajectory::hold([0.25, 0.40, -0.42], [0.0, 0.0, 0.0, 1.0]);
-//! let spec = EnvSpec {
+//! let spec = EpisodeSpec {
 //!     placement,
 //!     params: config.params,
 //!     object_mass_kg: 0.57,
@@ -106,7 +106,7 @@ pub use model::{DiscMass, Model};
 pub use randomize::Randomization;
 pub use sim::{EnvSnapshot, Simulator, LANES};
 pub use state::{
-    CupLoad, DiscState, EnvObservation, EnvSpec, HealthEvent, HealthReason, NoSealReason,
+    CupLoad, DiscState, EnvObservation, EpisodeSpec, HealthEvent, HealthReason, NoSealReason,
     Placement, SealEvent, SealEventKind,
 };
 pub use tool::{ToolCommand, ToolCommandReport, ToolState};

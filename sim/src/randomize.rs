@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::PARAM_NAMES;
 use crate::error::SimError;
-use crate::state::EnvSpec;
+use crate::state::EpisodeSpec;
 
 /// Ranges to draw from; every range is `[low, high]` and drawn uniformly unless said otherwise.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -114,7 +114,7 @@ impl Randomization {
 
     /// `base` with every randomised quantity drawn from `rng` (in a fixed order, so the same
     /// generator state gives the same spec).
-    pub fn apply(&self, base: &EnvSpec, rng: &mut impl Rng) -> EnvSpec {
+    pub fn apply(&self, base: &EpisodeSpec, rng: &mut impl Rng) -> EpisodeSpec {
         let mut spec = base.clone();
         let mut uniform = |r: [f32; 2]| {
             if r[0] < r[1] {

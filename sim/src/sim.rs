@@ -12,7 +12,7 @@ use crate::config::{Params, ToolLimits};
 use crate::embed::SurfaceEmbedding;
 use crate::error::SimError;
 use crate::model::Model;
-use crate::state::{CupLoad, DiscState, EnvObservation, EnvSpec, HealthEvent, SealEvent};
+use crate::state::{CupLoad, DiscState, EnvObservation, EpisodeSpec, HealthEvent, SealEvent};
 use crate::tool::{plan, ToolCommand, ToolCommandReport, ToolDrive, ToolState};
 use crate::trajectory::ToolTrajectory;
 
@@ -76,7 +76,7 @@ macro_rules! with_block_mut {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EnvSnapshot {
     /// The environment's spec (placement, parameters, masses, trajectory).
-    pub spec: EnvSpec,
+    pub spec: EpisodeSpec,
     /// Particles, cups and disc of the model it was taken from (checked on restore).
     shape: [usize; 3],
     /// Substep length of the model it was taken from (checked on restore).
@@ -94,7 +94,7 @@ impl EnvSnapshot {
 /// A batch of environments stepped in lockstep.
 pub struct Simulator {
     model: Arc<Model>,
-    specs: Vec<EnvSpec>,
+    specs: Vec<EpisodeSpec>,
     blocks: Blocks,
     constants: StepConstants,
     limits: ToolLimits,
@@ -116,7 +116,7 @@ fn lane_envs<const W: usize>(block: usize, num_envs: usize) -> ([usize; W], [boo
 }
 
 /// Lays environments out in blocks: 1-lane blocks for a single environment, else LANES-wide.
-fn build_blocks(model: &Model, specs: &[EnvSpec]) -> Blocks {
+fn build_blocks(model: &Model, specs: &[EpisodeSpec]) -> Blocks {
     let n = specs.len();
     if n == 1 {
         Blocks::Single(vec![Block::new(model, specs, [0], [true])])
@@ -134,7 +134,7 @@ fn build_blocks(model: &Model, specs: &[EnvSpec]) -> Blocks {
 }
 
 /// Checks one environment's spec.
-fn validate_spec(env: usize, spec: &EnvSpec) -> Result<(), SimError> {
+fn validate_spec(env: usize, spec: &EpisodeSpec) -> Result<(), SimError> {
     let fail = |message: String| Err(SimError::Env { env, message });
     if let Err(e) = spec
         .params
@@ -175,7 +175,7 @@ fn validate_spec(env: usize, spec: &EnvSpec) -> Result<(), SimError> {
 
 impl Simulator {
     /// Builds the batch: one environment per spec, all at rest at time 0.
-    pub fn new(model: Arc<Model>, specs: Vec<EnvSpec>) -> Result<Self, SimError> {
+    pub fn new(model: Arc<Model>, specs: Vec<EpisodeSpec>) -> Result<Self, SimError> {
         if specs.is_empty() {
             return Err(SimError::Env {
                 env: 0,
@@ -213,7 +213,7 @@ impl Simulator {
     /// Restarts environment `env` from `spec` (time 0 of its own clock, cups sealed anew, any
     /// freeze lifted) while the others keep their state; their results are bit-identical to a
     /// run without this reset.
-    pub fn reset_env(&mut self, env: usize, spec: EnvSpec) -> Result<(), SimError> {
+    pub fn reset_env(&mut self, env: usize, spec: EpisodeSpec) -> Result<(), SimError> {
         self.check_env(env)?;
         validate_spec(env, &spec)?;
         let model = self.model.clone();
@@ -505,7 +505,7 @@ impl Simulator {
     }
 
     /// The spec an environment was built from (with any parameter/trajectory replacements).
-    pub fn spec(&self, env: usize) -> &EnvSpec {
+    pub fn spec(&self, env: usize) -> &EpisodeSpec {
         &self.specs[env]
     }
 
@@ -810,7 +810,7 @@ mod tests {
 
     /// Package corner at (0, 0.3, 0), cups `cup_height` above the mid-plane at the centre, disc at
     /// the centre, tool held still (or following `tool`).
-    fn spec(config: &SceneConfig, cup_height: f32, tool: Option<ToolTrajectory>) -> EnvSpec {
+    fn spec(config: &SceneConfig, cup_height: f32, tool: Option<ToolTrajectory>) -> EpisodeSpec {
         let size = config.package.size_m;
         let centre = [size[1] / 2.0, 0.3, size[0] / 2.0];
         let cup_point = [centre[0], centre[1] + cup_height, centre[2]];
@@ -818,7 +818,7 @@ mod tests {
             [cup_point[0] as f64, 0.45, cup_point[2] as f64],
             [0.0, 0.0, 0.0, 1.0],
         );
-        EnvSpec {
+        EpisodeSpec {
             placement: Placement::new([0.0, 0.3, 0.0], cup_point, centre),
             params: config.params,
             object_mass_kg: 0.57,
@@ -833,7 +833,7 @@ mod tests {
         c
     }
 
-    fn perturbed(config: &SceneConfig, rng: &mut ChaCha8Rng) -> EnvSpec {
+    fn perturbed(config: &SceneConfig, rng: &mut ChaCha8Rng) -> EpisodeSpec {
         let mut s = spec(config, rng.random_range(0.002..0.02), None);
         let p = &mut s.params;
         p.k_tri_e *= rng.random_range(0.5..2.0);
@@ -1056,7 +1056,7 @@ mod tests {
         let c = coarse("reference", [6, 7]);
         let model = Arc::new(Model::new(&c).unwrap());
         let mut rng = ChaCha8Rng::seed_from_u64(11);
-        let specs: Vec<EnvSpec> = (0..1024).map(|_| perturbed(&c, &mut rng)).collect();
+        let specs: Vec<EpisodeSpec> = (0..1024).map(|_| perturbed(&c, &mut rng)).collect();
         let mut batch = Simulator::new(model.clone(), specs.clone()).unwrap();
         batch.step(96);
         for env in [0, 5, 517, 1023] {
@@ -1073,7 +1073,7 @@ mod tests {
         let c = coarse("reference", [6, 7]);
         let model = Arc::new(Model::new(&c).unwrap());
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let specs: Vec<EnvSpec> = (0..21).map(|_| perturbed(&c, &mut rng)).collect();
+        let specs: Vec<EpisodeSpec> = (0..21).map(|_| perturbed(&c, &mut rng)).collect();
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -1093,7 +1093,7 @@ mod tests {
         let c = coarse("reference", [6, 7]);
         let model = Arc::new(Model::new(&c).unwrap());
         let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let specs: Vec<EnvSpec> = (0..10).map(|_| perturbed(&c, &mut rng)).collect();
+        let specs: Vec<EpisodeSpec> = (0..10).map(|_| perturbed(&c, &mut rng)).collect();
         let mut poisoned = specs.clone();
         poisoned[3].params.k_tri_e = 1e10;
         poisoned[3].params.k_spr_e = 1e10;
@@ -1122,7 +1122,7 @@ mod tests {
         let c = coarse("reference", [6, 7]);
         let model = Arc::new(Model::new(&c).unwrap());
         let mut rng = ChaCha8Rng::seed_from_u64(9);
-        let specs: Vec<EnvSpec> = (0..3).map(|_| perturbed(&c, &mut rng)).collect();
+        let specs: Vec<EpisodeSpec> = (0..3).map(|_| perturbed(&c, &mut rng)).collect();
         let mut sim = Simulator::new(model, specs).unwrap();
         let initial = snapshot(&sim, 2);
         sim.step(40);
@@ -1140,7 +1140,7 @@ mod tests {
         let c = coarse("reference", [6, 7]);
         let model = Arc::new(Model::new(&c).unwrap());
         let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let specs: Vec<EnvSpec> = (0..2 * LANES).map(|_| perturbed(&c, &mut rng)).collect();
+        let specs: Vec<EpisodeSpec> = (0..2 * LANES).map(|_| perturbed(&c, &mut rng)).collect();
         let mut all = Simulator::new(model.clone(), specs.clone()).unwrap();
         let mut some = Simulator::new(model, specs).unwrap();
         all.step(30);

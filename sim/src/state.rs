@@ -1,4 +1,4 @@
-//! Per-environment inputs ([`EnvSpec`], [`Placement`]) and outputs ([`DiscState`],
+//! Per-environment inputs ([`EpisodeSpec`], [`Placement`]) and outputs ([`DiscState`],
 //! [`HealthEvent`]) of the batched simulator.
 
 use std::sync::Arc;
@@ -93,9 +93,10 @@ impl Placement {
     }
 }
 
-/// Everything that differs between environments of one batch.
+/// How one environment's episode is set up: what differs between the environments of a batch
+/// (the `env` crate's `EnvSpec` is the trainer-facing description of a whole task).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct EnvSpec {
+pub struct EpisodeSpec {
     /// Initial placement.
     pub placement: Placement,
     /// Material parameters.

@@ -292,7 +292,7 @@ impl Replay {
         // The same placement and tool drive as the calibration uses, so a replay shows what it fits.
         let target = Target::new(recording, None, config.disc.hold_at_recorded_start)
             .map_err(|err| input_error(format!("{}: {err}", args.trajectory.display())))?;
-        let spec = target.env_spec(config.params, None);
+        let spec = target.episode_spec(config.params, None);
         let placement = target.placement;
         let initial_markers = target.initial_markers;
         let model = Arc::new(Model::new(config).map_err(input_error)?);

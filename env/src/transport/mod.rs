@@ -42,7 +42,7 @@ use glam::{DQuat, DVec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{
-    CupLoad, EnvObservation, EnvSnapshot, EnvSpec as SimSpec, HealthEvent, Model, SceneConfig,
+    CupLoad, EnvObservation, EnvSnapshot, EpisodeSpec, HealthEvent, Model, SceneConfig,
     SealEvent, SealEventKind, Simulator, ToolCommand, ToolLimits, ToolTrajectory,
 };
 
@@ -722,9 +722,9 @@ impl Transport {
     }
 
     /// The package at pick on `path`, the tool held at its start pose.
-    fn base_spec(scene: &SceneConfig, path: &TransportPath) -> SimSpec {
+    fn base_spec(scene: &SceneConfig, path: &TransportPath) -> EpisodeSpec {
         let q = path.start_orientation;
-        SimSpec {
+        EpisodeSpec {
             placement: path.placement,
             params: scene.params,
             object_mass_kg: path.object_mass_kg,
@@ -795,7 +795,7 @@ impl Transport {
     /// whether every cup of each still holds a healthy package.
     fn settle(
         model: &Arc<Model>,
-        specs: Vec<SimSpec>,
+        specs: Vec<EpisodeSpec>,
         settle_s: f64,
     ) -> Result<(Vec<EnvSnapshot>, Vec<bool>), EnvError> {
         let mut sim = Simulator::new(model.clone(), specs).map_err(sim_error)?;

@@ -29,7 +29,7 @@ use crate::forces::ContactMaterial;
 use crate::implicit::Sym3;
 use crate::math::{Lanes, Quat, Real, V3};
 use crate::model::Model;
-use crate::state::{EnvSpec, HealthEvent, SealEvent};
+use crate::state::{EpisodeSpec, HealthEvent, SealEvent};
 use crate::tool::{ToolDrive, ToolState};
 use crate::trajectory::ToolTrajectory;
 
@@ -206,7 +206,7 @@ pub(crate) fn get3<const W: usize>(v: &V3<L<W>>, l: usize) -> [f32; 3] {
     [v.x.0[l], v.y.0[l], v.z.0[l]]
 }
 
-fn lane_params_set<const W: usize>(p: &mut LaneParams<W>, l: usize, model: &Model, spec: &EnvSpec) {
+fn lane_params_set<const W: usize>(p: &mut LaneParams<W>, l: usize, model: &Model, spec: &EpisodeSpec) {
     let params = &spec.params;
     let c = &model.config.contact;
     p.tri[0].0[l] = params.k_tri_e;
@@ -246,7 +246,7 @@ fn lane_params_set<const W: usize>(p: &mut LaneParams<W>, l: usize, model: &Mode
 
 impl<const W: usize> Block<W> {
     /// A block holding `specs[envs[l]]` in lane l.
-    pub(crate) fn new(model: &Model, specs: &[EnvSpec], envs: [usize; W], real: [bool; W]) -> Self {
+    pub(crate) fn new(model: &Model, specs: &[EpisodeSpec], envs: [usize; W], real: [bool; W]) -> Self {
         let n = model.num_particles();
         let zero3 = V3::<L<W>>::zero();
         let zero = L::<W>::splat(0.0);
@@ -352,7 +352,7 @@ impl<const W: usize> Block<W> {
     }
 
     /// Restarts every lane holding `env` from `spec`: time 0, active, cups sealed anew.
-    pub(crate) fn reset_env(&mut self, env: usize, model: &Model, spec: &EnvSpec) {
+    pub(crate) fn reset_env(&mut self, env: usize, model: &Model, spec: &EpisodeSpec) {
         for l in self.lanes_of(env).collect::<Vec<_>>() {
             self.tools[l] = ToolDrive::Trajectory(spec.trajectory.clone());
             self.clock[l] = 0;
@@ -383,7 +383,7 @@ impl<const W: usize> Block<W> {
     }
 
     /// Places environment `spec` in lane `l`: positions, springs, cup offsets, disc, parameters.
-    fn init_lane(&mut self, l: usize, model: &Model, spec: &EnvSpec) {
+    fn init_lane(&mut self, l: usize, model: &Model, spec: &EpisodeSpec) {
         let pl = &spec.placement;
         let cup_start = model.cup_start();
         // The package (and the disc in it) turned by its yaw about the vertical through the cup point.
@@ -504,7 +504,7 @@ impl<const W: usize> Block<W> {
     }
 
     /// Replaces the material parameters (and object mass) of every lane holding `env`.
-    pub(crate) fn set_params(&mut self, env: usize, model: &Model, spec: &EnvSpec) {
+    pub(crate) fn set_params(&mut self, env: usize, model: &Model, spec: &EpisodeSpec) {
         for l in 0..W {
             if self.envs[l] == env {
                 lane_params_set(&mut self.params, l, model, spec);

@@ -350,7 +350,7 @@ mod tests {
 
     use super::*;
     use crate::math::Lanes;
-    use crate::{EnvSpec, Placement, SceneConfig, ToolTrajectory};
+    use crate::{EpisodeSpec, Placement, SceneConfig, ToolTrajectory};
 
     /// A one-lane block of the physical scene with the seal on, its clock past the rest.
     fn block() -> (Model, Block<1>) {
@@ -363,7 +363,7 @@ mod tests {
         c.seal.lip_strength_ratio = 3.0;
         let model = Model::new(&c).unwrap();
         let cup = [0.15, 0.51, 0.127];
-        let spec = EnvSpec {
+        let spec = EpisodeSpec {
             placement: Placement::new([0.0, 0.5, 0.0], cup, [0.15, 0.5, 0.127]),
             params: c.params,
             object_mass_kg: 0.5,

@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::model::Model;
-use crate::state::{DiscState, EnvSpec};
+use crate::state::{DiscState, EpisodeSpec};
 use crate::tool::ToolDrive;
 
 use super::{get3, lane_params_set, set3, Block, L};
@@ -84,7 +84,7 @@ impl<const W: usize> Block<W> {
         &mut self,
         env: usize,
         model: &Model,
-        spec: &EnvSpec,
+        spec: &EpisodeSpec,
         snap: &LaneSnapshot,
     ) {
         for l in (0..W).filter(|&l| self.envs[l] == env).collect::<Vec<_>>() {
