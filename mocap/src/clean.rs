@@ -315,6 +315,9 @@ pub struct CleanedMarkers {
     /// Distance (m) between each re-identified id's first position and the predicted position of
     /// the track it joined.
     pub reid_distances_m: Vec<f64>,
+    /// Candidate joins (within the distance gate) refused because the new id lies on another
+    /// sheet than the lost marker.
+    pub refused_across_sheets: usize,
     /// Tracks dropped as too short-lived.
     pub short_tracks_dropped: usize,
     /// Samples in runs too short to filter.
@@ -410,7 +413,12 @@ pub fn clean_markers(
         .map(|k| fragments.iter().filter(|f| f[k].is_some()).count())
         .collect();
 
-    let (linked, reid_distances_m) = reidentify(fragments, config, sample_rate_hz);
+    let Reidentified {
+        tracks: linked,
+        joined_distances_m: reid_distances_m,
+        refused_across_sheets,
+        ..
+    } = reidentify(fragments, config, sample_rate_hz);
 
     // Spurious reflections: short-lived tracks, then samples far from the package cluster.
     let min_samples = frames(config.min_track_s);
@@ -477,21 +485,46 @@ pub fn clean_markers(
         input_ids: fragments.len(),
         reidentified_ids: reid_distances_m.len(),
         reid_distances_m,
+        refused_across_sheets: refused_across_sheets.len(),
         short_tracks_dropped,
         unfiltered_samples,
     })
 }
 
+/// A candidate join that re-identification refused because the new id lies on another sheet than
+/// the lost track.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SheetRefusal {
+    /// Frame where the new id first appears.
+    pub frame: usize,
+    /// The new id's fragment (index into the input).
+    pub fragment: usize,
+    /// The lost track it was not joined to (index into [`Reidentified::tracks`]).
+    pub track: usize,
+}
+
+/// What re-identification made of the fragments.
+#[derive(Debug, Clone, Default)]
+pub struct Reidentified {
+    /// One series per physical marker, in order of first appearance.
+    pub tracks: Vec<Series>,
+    /// The track each fragment went to (`None` for a fragment that is never seen).
+    pub track_of: Vec<Option<usize>>,
+    /// Per joined id, the distance (m) of its first position to the lost track's prediction.
+    pub joined_distances_m: Vec<f64>,
+    /// Candidate joins within the distance gate that the sheet test refused.
+    pub refused_across_sheets: Vec<SheetRefusal>,
+}
+
 /// Joins fragments (one per marker id) into tracks: when ids first appear at frame k they are
 /// matched (Hungarian) to tracks lost at most `reid_max_lost_s` ago, with cost = distance to the
 /// track's predicted position divided by the accepted distance (`reid_max_distance_m` plus
-/// `reid_distance_growth_m_per_s` per second lost); pairs above 1 are not matched. Returns the
-/// tracks and, per joined id, its distance (m) to the prediction.
+/// `reid_distance_growth_m_per_s` per second lost); pairs above 1 are not matched.
 pub fn reidentify(
     fragments: &[Series],
     config: &CleaningConfig,
     sample_rate_hz: f64,
-) -> (Vec<Series>, Vec<f64>) {
+) -> Reidentified {
     let max_lost_frames = (config.reid_max_lost_s * sample_rate_hz).round() as usize;
     let n_frames = fragments.first().map_or(0, Vec::len);
     let mut starts: Vec<(usize, usize)> = fragments
@@ -504,6 +537,8 @@ pub fn reidentify(
     // Last observed frame of each track.
     let mut last_seen: Vec<usize> = Vec::new();
     let mut joined = Vec::new();
+    let mut track_of = vec![None; fragments.len()];
+    let mut refused = Vec::new();
     let mut s = 0;
     while s < starts.len() {
         let k = starts[s].0;
@@ -555,19 +590,27 @@ pub fn reidentify(
             let mut cost = Vec::with_capacity(newcomers.len() * lost.len());
             for &i in &newcomers {
                 let first = fragments[i][k].expect("fragment starts at k");
-                cost.extend(predicted.iter().zip(&accepted).zip(&normals).map(
-                    |((&p, limit), normal)| {
-                        let offset = Vector3::from(first) - Vector3::from(p);
-                        // Without a plane, only a newcomer closer than the sheet offset in every
-                        // direction is surely on the same sheet.
-                        let off_sheet = normal.map_or(offset.norm(), |n| offset.dot(&n).abs());
-                        if off_sheet > config.reid_max_sheet_offset_m {
-                            f64::INFINITY
-                        } else {
-                            distance(first, p) / limit
+                for (c, ((&p, limit), normal)) in
+                    predicted.iter().zip(&accepted).zip(&normals).enumerate()
+                {
+                    let offset = Vector3::from(first) - Vector3::from(p);
+                    // Without a plane, only a newcomer closer than the sheet offset in every
+                    // direction is surely on the same sheet.
+                    let off_sheet = normal.map_or(offset.norm(), |n| offset.dot(&n).abs());
+                    let scaled = distance(first, p) / limit;
+                    if off_sheet > config.reid_max_sheet_offset_m {
+                        if scaled <= 1.0 {
+                            refused.push(SheetRefusal {
+                                frame: k,
+                                fragment: i,
+                                track: lost[c],
+                            });
                         }
-                    },
-                ));
+                        cost.push(f64::INFINITY);
+                    } else {
+                        cost.push(scaled);
+                    }
+                }
             }
             for (r, c) in assign(&cost, newcomers.len(), lost.len(), 1.0) {
                 target[r] = Some((lost[c], cost[r * lost.len() + c] * accepted[c]));
@@ -582,6 +625,7 @@ pub fn reidentify(
             match target[r] {
                 Some((j, distance)) => {
                     joined.push(distance);
+                    track_of[i] = Some(j);
                     for f in k..=last {
                         if fragment[f].is_some() {
                             tracks[j][f] = fragment[f];
@@ -592,13 +636,19 @@ pub fn reidentify(
                 None => {
                     let mut track = vec![None; n_frames];
                     track[k..=last].copy_from_slice(&fragment[k..=last]);
+                    track_of[i] = Some(tracks.len());
                     tracks.push(track);
                     last_seen.push(last);
                 }
             }
         }
     }
-    (tracks, joined)
+    Reidentified {
+        tracks,
+        track_of,
+        joined_distances_m: joined,
+        refused_across_sheets: refused,
+    }
 }
 
 /// Markers used to fit the local sheet plane: the nearest ones, so the plane stays local on a
@@ -1287,7 +1337,11 @@ mod tests {
         fragments.push(l.clone());
         fragments.push(u_after.clone());
         let config = CleaningConfig::default();
-        let (tracks, joined) = reidentify(&fragments, &config, 250.0);
+        let Reidentified {
+            tracks,
+            joined_distances_m: joined,
+            ..
+        } = reidentify(&fragments, &config, 250.0);
         // Every track stays on one sheet.
         for track in &tracks {
             let heights: Vec<f64> = track.iter().flatten().map(|p| p[1]).collect();
@@ -1310,7 +1364,7 @@ mod tests {
             reid_max_sheet_offset_m: 1.0,
             ..config
         };
-        let (tracks, _) = reidentify(&fragments, &no_sheets, 250.0);
+        let tracks = reidentify(&fragments, &no_sheets, 250.0).tracks;
         let u = tracks.iter().find(|t| t[0] == u_before[0]).unwrap();
         assert_eq!(
             u[100], l[100],

@@ -354,6 +354,8 @@ pub struct RetentionReport {
     pub reidentified_ids: usize,
     /// Median and largest distance (m) of a re-identified id to its predicted position.
     pub reid_distance_m: (f64, f64),
+    /// Candidate joins refused because the new id lies on the other film sheet.
+    pub refused_across_sheets: usize,
     /// Physical marker tracks kept.
     pub tracks_kept: usize,
     /// Tracks dropped as too short-lived (spurious reflections).
@@ -415,12 +417,13 @@ impl fmt::Display for RetentionReport {
         )?;
         write!(
             f,
-            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
+            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} candidate joins refused as on the other sheet; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
             self.input_ids,
             self.tracks_kept,
             self.reidentified_ids,
             1e3 * self.reid_distance_m.0,
             1e3 * self.reid_distance_m.1,
+            self.refused_across_sheets,
             self.short_tracks_dropped,
             self.markers_per_frame.0,
             self.markers_per_frame.1,
@@ -767,6 +770,7 @@ pub fn convert_with_robot(
         input_ids: cleaned.input_ids,
         reidentified_ids: cleaned.reidentified_ids,
         reid_distance_m: median_and_max(&cleaned.reid_distances_m),
+        refused_across_sheets: cleaned.refused_across_sheets,
         tracks_kept: cleaned
             .tracks
             .iter()
