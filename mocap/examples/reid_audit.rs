@@ -15,10 +15,14 @@
 //! cups hold the top sheet). An id that never has such a partner is on the top sheet if it is seen
 //! before the lift (the bottom sheet lies on the conveyor, unseen), and of unknown sheet
 //! otherwise; joins and refusals that involve an unknown sheet are counted apart.
+//!
+//! With `REID_AUDIT_DETAILS=1` it also prints, per take, how the importer's sheets
+//! ([`fragment_sheets`]) agree with these, and every join across sheets and every genuine join
+//! refused.
 
 use std::path::Path;
 
-use rlpkg_mocap::clean::{self, reidentify, Series};
+use rlpkg_mocap::clean::{self, fragment_sheets, reidentify, Series};
 use rlpkg_mocap::import::{rotate, ImportConfig};
 use rlpkg_mocap::motive::{read_take, MarkerKind};
 
@@ -193,6 +197,28 @@ fn audit(path: &Path, config: &ImportConfig) -> Counts {
 
     let cleaning = &config.cleaning;
     let result = reidentify(&fragments, cleaning, rate);
+    let details = std::env::var_os("REID_AUDIT_DETAILS").is_some();
+    let method = fragment_sheets(&fragments, cleaning);
+    if details {
+        // Agreement of the importer's sheets with the tool-based ones: [top, bottom] per side.
+        let mut table = [[0usize; 2]; 3];
+        for (m, g) in method.iter().zip(&sheet) {
+            let row = match m {
+                Some(clean::Sheet::Front) => 0,
+                Some(clean::Sheet::Back) => 1,
+                None => 2,
+            };
+            match g {
+                Sheet::Top => table[row][0] += 1,
+                Sheet::Bottom => table[row][1] += 1,
+                _ => {}
+            }
+        }
+        println!(
+            "  {}: importer front/back/unknown x tool top/bottom: {table:?}",
+            path.display()
+        );
+    }
     let start = |i: usize| fragments[i].iter().position(Option::is_some);
     // The fragment of `track` seen last before frame `k`.
     let last_before = |track: usize, k: usize| {
@@ -225,7 +251,16 @@ fn audit(path: &Path, config: &ImportConfig) -> Counts {
         let previous = last_before(track, k).expect("a joined id follows another");
         match same(sheet[i], sheet[previous]) {
             Some(true) => c.joins_same_sheet += 1,
-            Some(false) => c.joins_across_sheets += 1,
+            Some(false) => {
+                c.joins_across_sheets += 1;
+                if details {
+                    println!(
+                        "  across: frame {k} id {i} ({:?}, importer {:?}, {} frames) joins id {previous} ({:?}, importer {:?}) last seen {:?}",
+                        sheet[i], method[i], fragments[i].iter().flatten().count(), sheet[previous], method[previous],
+                        fragments[previous].iter().rposition(Option::is_some)
+                    );
+                }
+            }
             None => c.joins_unknown += 1,
         }
     }
@@ -234,7 +269,16 @@ fn audit(path: &Path, config: &ImportConfig) -> Counts {
         let previous = last_before(refusal.track, refusal.frame).expect("a lost track was seen");
         match same(sheet[refusal.fragment], sheet[previous]) {
             // Genuine: the same sheet, and the new id went nowhere else.
-            Some(true) if starts_own_track(refusal.fragment) => c.refused_genuine += 1,
+            Some(true) if starts_own_track(refusal.fragment) => {
+                c.refused_genuine += 1;
+                if details {
+                    println!(
+                        "  refused: frame {} id {} ({:?}, importer {:?}) from track of id {previous} ({:?}, importer {:?}) last seen {:?}",
+                        refusal.frame, refusal.fragment, sheet[refusal.fragment], method[refusal.fragment],
+                        sheet[previous], method[previous], fragments[previous].iter().rposition(Option::is_some)
+                    );
+                }
+            }
             Some(true) => {}
             Some(false) => c.refused_other_sheet += 1,
             None => c.refused_unknown += 1,
