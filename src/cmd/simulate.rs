@@ -101,6 +101,9 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("runs/simulate-{}", recording.id)));
     let mut replay = Replay::new(&recording, &config, &args)?;
+    // From here on a signal stops the replay between two pictures; the unfinished GIF removes
+    // its temporary file when dropped, and nothing else is open for writing then.
+    let _cooperation = crate::interrupt::Cooperation::start();
     prepare_output(&out)?;
     println!(
         "simulate {}: {} package + {} cup particles, dt = 1/{} s, {:.2} s rest + {:.3} s replay ({} substeps)",
@@ -382,6 +385,7 @@ impl Replay {
         let (disc_radius, disc_thickness) =
             (self.model.disc.radius, 2.0 * self.model.disc.half_height);
         for stop in self.stops.clone() {
+            crate::interrupt::check()?;
             let ahead = stop.substep.saturating_sub(self.sim.substep());
             self.sim.step(ahead);
             progress.inc(ahead);
@@ -437,6 +441,7 @@ impl Replay {
             }
         }
         progress.finish_and_clear();
+        crate::interrupt::check()?;
         if let Some(writer) = gif {
             let frames = writer.frames();
             outcome.gif = Some((writer.finish().map_err(output_error)?, frames));
