@@ -361,9 +361,8 @@ fn render_beside_medium(
     by_policy[0].positions[..package]
         .iter()
         .for_each(|&p| close_up.include(p));
-    let (low, high) = (close_up.min, close_up.max);
-    close_up.include([low[0], low[1] - 0.08, low[2]]);
-    close_up.include(high);
+    // Room below the package for it to sag around the disc.
+    close_up.include(close_up.min - 0.08 * glam::Vec3::Y);
     let (scene, close_up) = (scene.padded(0.03), close_up.padded(0.02));
     const PANEL: (u32, u32) = (640, 360);
     let view = View::new(&scene, &close_up, PANEL.0, PANEL.1);

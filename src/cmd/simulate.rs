@@ -22,6 +22,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
+use glam::{DVec3, Vec3};
 use indicatif::{ProgressBar, ProgressStyle};
 use rlpkg_mocap::{load_trajectory, Trajectory};
 use rlpkg_replay::loss::chamfer_distance;
@@ -516,12 +517,12 @@ fn picture_bounds(recording: &Trajectory, sim: &Simulator, last_frame: usize) ->
     let tool = &recording.tool.position;
     let (low, high) = (close_up.min, close_up.max);
     for p in &tool[..=last_frame] {
-        let shift = [0, 1, 2].map(|k| (p[k] - tool[0][k]) as f32);
-        scene.include([0, 1, 2].map(|k| low[k] + shift[k]));
-        scene.include([0, 1, 2].map(|k| high[k] + shift[k]));
+        let shift = (DVec3::from(*p) - DVec3::from(tool[0])).as_vec3();
+        scene.include(low + shift);
+        scene.include(high + shift);
     }
     // Room below the package for it to sag around the disc.
-    close_up.include([low[0], low[1] - 0.08, low[2]]);
+    close_up.include(low - 0.08 * Vec3::Y);
     (scene.padded(0.03), close_up.padded(0.02))
 }
 
