@@ -1,4 +1,5 @@
-//! Exit-code policy: bad user input (a file, a key, a value) exits with code 2, anything else with 1.
+//! Exit-code policy: bad user input (a file, a key, a value) exits with code 2, a command stopped by
+//! Ctrl-C or SIGTERM with 130, anything else with 1.
 
 use std::fmt;
 
@@ -20,9 +21,15 @@ pub fn input_error(err: impl fmt::Display) -> anyhow::Error {
     anyhow::Error::new(InputError(err.to_string()))
 }
 
-/// The process exit code for an error returned by a command.
+/// The process exit code for an error returned by a command: 130 when a signal stopped it, 2 for
+/// bad input, 1 otherwise.
 pub fn exit_code(err: &anyhow::Error) -> i32 {
-    if err.chain().any(|cause| cause.is::<InputError>()) {
+    if err
+        .chain()
+        .any(|cause| cause.is::<crate::interrupt::Interrupted>())
+    {
+        crate::interrupt::EXIT_CODE
+    } else if err.chain().any(|cause| cause.is::<InputError>()) {
         2
     } else {
         1

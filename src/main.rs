@@ -5,6 +5,7 @@
 mod cmd;
 mod error;
 mod files;
+mod interrupt;
 mod render;
 
 use clap::{Parser, Subcommand};
@@ -38,6 +39,7 @@ enum Command {
 
 fn main() {
     let cli = Cli::parse();
+    interrupt::install();
     let result = match cli.command {
         Command::Train(args) => cmd::train::run(args),
         Command::Eval(args) => cmd::eval::run(args),
@@ -48,6 +50,7 @@ fn main() {
         Command::Bench(command) => cmd::bench::run(command),
     };
     if let Err(err) = result {
+        let err = interrupt::explain(err);
         eprintln!("error: {}", error::message(&err));
         std::process::exit(error::exit_code(&err));
     }

@@ -105,6 +105,27 @@ fn tiny_config(dir: &Path, from: &str, to: &str) {
     std::fs::write(dir.join("tiny.toml"), TINY_CARTPOLE.replace(from, to)).unwrap();
 }
 
+/// `configs/<name>` copied into `dir` with `from` replaced by `to`.
+fn shipped_config(dir: &Path, name: &str, from: &str, to: &str) {
+    let text = std::fs::read_to_string(repo().join("configs").join(name)).unwrap();
+    assert!(text.contains(from), "{name} lacks {from}");
+    std::fs::write(dir.join(name), text.replace(from, to)).unwrap();
+}
+
+/// `rlpkg data import-motive` of the fixture take into `dir/out` with `dir/import.toml`.
+fn import_args() -> Vec<String> {
+    let take = repo().join("mocap/tests/fixtures/a30_m0.5_high_excerpt.csv.gz");
+    args(&[
+        "data",
+        "import-motive",
+        &take.display().to_string(),
+        "--out",
+        "out",
+        "--config",
+        "import.toml",
+    ])
+}
+
 fn edit(path: &Path, from: &str, to: &str) {
     let text = std::fs::read_to_string(path).unwrap();
     assert!(text.contains(from), "{} lacks {from}", path.display());
@@ -428,6 +449,212 @@ fn cases() -> Vec<Case> {
             expected: &["scene.toml", "grid", "2"],
         },
         Case {
+            name: "scene size with three values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "physical.toml",
+                    "size_m = [0.254, 0.3048]",
+                    "size_m = [0.254, 0.3048, 0.012]",
+                );
+                args(&["simulate", &trajectory(), "--params", "physical.toml"])
+            },
+            expected: &[
+                "physical.toml",
+                "size_m = [0.254, 0.3048, 0.012]",
+                "invalid length 3, expected an array of length 2",
+            ],
+        },
+        Case {
+            name: "import: cup offset with four values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "import.toml",
+                    "tool_to_cup_m = [0.0, -0.005, 0.0]",
+                    "tool_to_cup_m = [0.0, -0.005, 0.0, 1.0]",
+                );
+                import_args()
+            },
+            expected: &[
+                "import.toml: line 47: key `conversion.tool_to_cup_m`",
+                "invalid length 4, expected an array of length 3",
+            ],
+        },
+        Case {
+            name: "import: package size with one value",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "import.toml",
+                    "size_m = [0.254, 0.3048]",
+                    "size_m = [0.254]",
+                );
+                import_args()
+            },
+            expected: &[
+                "import.toml: line 59: key `package.size_m`",
+                "invalid length 1, expected an array of length 2",
+            ],
+        },
+        Case {
+            name: "import: robot rotation with three values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "import.toml",
+                    "# rotation_xyzw = [-0.7071067811865476, 0.0, 0.0, 0.7071067811865476]\n# translation_m = [-0.4, 0.0, 0.15]",
+                    "rotation_xyzw = [-0.7071067811865476, 0.0, 0.7071067811865476]\ntranslation_m = [-0.4, 0.0, 0.15]",
+                );
+                import_args()
+            },
+            expected: &[
+                "import.toml: line 69: key `robot.rotation_xyzw`",
+                "invalid length 3, expected an array of length 4",
+            ],
+        },
+        Case {
+            name: "import: robot translation with two values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "import.toml",
+                    "# rotation_xyzw = [-0.7071067811865476, 0.0, 0.0, 0.7071067811865476]\n# translation_m = [-0.4, 0.0, 0.15]",
+                    "rotation_xyzw = [-0.7071067811865476, 0.0, 0.0, 0.7071067811865476]\ntranslation_m = [-0.4, 0.15]",
+                );
+                import_args()
+            },
+            expected: &[
+                "import.toml: line 70: key `robot.translation_m`",
+                "invalid length 2, expected an array of length 3",
+            ],
+        },
+        Case {
+            name: "transport: target tilt with three values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "transport.toml",
+                    "target_tilt_deg = [30.0, 60.0]",
+                    "target_tilt_deg = [30.0, 45.0, 60.0]",
+                );
+                args(&["train", "transport.toml"])
+            },
+            expected: &[
+                "transport.toml",
+                "key `transport.randomization.target_tilt_deg`",
+                "invalid length 3, expected an array of length 2",
+            ],
+        },
+        Case {
+            name: "transport: package grid with three values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "transport.toml",
+                    "grid = [11, 13]",
+                    "grid = [11, 13, 2]",
+                );
+                args(&["train", "transport.toml"])
+            },
+            expected: &[
+                "transport.toml",
+                "key `transport.grid`",
+                "invalid length 3, expected an array of length 2",
+            ],
+        },
+        Case {
+            name: "transport: one value for a mass range",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "transport.toml",
+                    "object_mass_kg = [0.287, 0.595]",
+                    "object_mass_kg = [0.287]",
+                );
+                args(&["train", "transport.toml"])
+            },
+            expected: &[
+                "transport.toml",
+                "key `transport.randomization.package.object_mass_kg`",
+                "invalid length 1, expected an array of length 2",
+            ],
+        },
+        Case {
+            name: "transport: yaw range with three values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "transport.toml",
+                    "package_yaw_deg = [-10.0, 10.0]",
+                    "package_yaw_deg = [-10.0, 0.0, 10.0]",
+                );
+                args(&["train", "transport.toml"])
+            },
+            expected: &[
+                "transport.toml",
+                "key `transport.randomization.package.package_yaw_deg`",
+                "invalid length 3, expected an array of length 2",
+            ],
+        },
+        Case {
+            name: "transport: material scale with three values",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "transport.toml",
+                    "k_tri_d = [0.8, 1.25]",
+                    "k_tri_d = [0.8, 1.0, 1.25]",
+                );
+                args(&["train", "transport.toml"])
+            },
+            expected: &[
+                "transport.toml",
+                "key `transport.randomization.package.param_scale.k_tri_d`",
+                "invalid length 3, expected an array of length 2",
+            ],
+        },
+        Case {
+            name: "recording: cup position with four values in meta.toml",
+            setup: |dir| {
+                copy_dir(
+                    &repo().join("data/deformable-sim-real/HHHHH"),
+                    &dir.join("HHHHH"),
+                );
+                edit(
+                    &dir.join("HHHHH/meta.toml"),
+                    "initial_suction_cup_position_m = [0.241590, 0.246999, -0.461197]",
+                    "initial_suction_cup_position_m = [0.241590, 0.246999, -0.461197, 0.0]",
+                );
+                args(&["simulate", "HHHHH", "--seconds", "0.01"])
+            },
+            expected: &[
+                "HHHHH/meta.toml: line 8",
+                "key `initial_suction_cup_position_m`",
+                "invalid length 4, expected an array of length 3",
+            ],
+        },
+        Case {
+            name: "recording: a marker with two coordinates in meta.toml",
+            setup: |dir| {
+                copy_dir(
+                    &repo().join("data/deformable-sim-real/HHHHH"),
+                    &dir.join("HHHHH"),
+                );
+                edit(
+                    &dir.join("HHHHH/meta.toml"),
+                    "  [0.373205, 0.249217, -0.377125],",
+                    "  [0.373205, 0.249217],",
+                );
+                args(&["simulate", "HHHHH", "--seconds", "0.01"])
+            },
+            expected: &[
+                "HHHHH/meta.toml: line 9",
+                "key `initial_marker_positions_m`",
+                "invalid length 2, expected an array of length 3",
+            ],
+        },
+        Case {
             name: "particles between markers overflowing",
             setup: |_| {
                 args(&[
@@ -485,6 +712,8 @@ fn cases() -> Vec<Case> {
 #[test]
 fn bad_inputs_exit_with_2_name_the_culprit_and_write_nothing() {
     let mut failures = Vec::new();
+    // With RLPKG_BAD_INPUTS_TABLE=<file>, every case as a markdown row (for release notes).
+    let mut table = String::from("| case | command | exit code | message |\n|---|---|---|---|\n");
     for case in cases() {
         let dir = tempfile::tempdir().unwrap();
         let args = (case.setup)(dir.path());
@@ -510,6 +739,18 @@ fn bad_inputs_exit_with_2_name_the_culprit_and_write_nothing() {
         if snapshot(dir.path()) != before {
             problems.push("the folder changed".into());
         }
+        let command = args
+            .iter()
+            .map(|a| a.replace(&repo().display().to_string(), "<repo>"))
+            .collect::<Vec<_>>()
+            .join(" ");
+        let message: String = stderr.split_whitespace().collect::<Vec<_>>().join(" ");
+        table += &format!(
+            "| {} | `rlpkg {command}` | {} | {} |\n",
+            case.name,
+            out.status.code().map_or("signal".into(), |c| c.to_string()),
+            message.replace('|', "\\|")
+        );
         if !problems.is_empty() {
             failures.push(format!(
                 "{}: {}\n  rlpkg {:?}\n  stderr: {stderr}",
@@ -518,6 +759,9 @@ fn bad_inputs_exit_with_2_name_the_culprit_and_write_nothing() {
                 args
             ));
         }
+    }
+    if let Some(path) = std::env::var_os("RLPKG_BAD_INPUTS_TABLE") {
+        std::fs::write(path, table).unwrap();
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

@@ -212,3 +212,77 @@ fn bad_options_exit_with_2_and_name_the_option() {
         assert!(stderr.contains(named), "{extra:?}: {stderr}");
     }
 }
+
+/// Every file under `dir`, recursively.
+fn files_under(dir: &Path) -> Vec<PathBuf> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            files.extend(files_under(&path));
+        } else {
+            files.push(path);
+        }
+    }
+    files
+}
+
+#[test]
+fn ctrl_c_while_writing_leaves_no_temporary_file() {
+    // The whole recording (about 8 s at 30720 substeps/s, a minute or more of work): SIGINT as
+    // soon as the GIF's temporary file exists and a still is written.
+    let out = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args([
+            "simulate",
+            trajectory("HHLHL").to_str().unwrap(),
+            "--png-every",
+            "0.05",
+            "--out",
+            out.path().to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    let writing = || {
+        let files = files_under(out.path());
+        let temporary = files.iter().any(|f| f.to_string_lossy().contains(".tmp"));
+        let still = files
+            .iter()
+            .any(|f| f.extension().is_some_and(|e| e == "png"));
+        temporary && still
+    };
+    while !writing() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the replay ended before it was interrupted"
+        );
+        assert!(
+            started.elapsed().as_secs() < 300,
+            "nothing written in 5 min"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let result = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(130), "{stderr}");
+    assert!(stderr.contains("interrupted"), "{stderr}");
+    let files = files_under(out.path());
+    let leftovers: Vec<&PathBuf> = files
+        .iter()
+        .filter(|f| {
+            f.file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+        })
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+    assert!(!out.path().join("replay.gif").exists());
+    assert!(!out.path().join("summary.json").exists());
+}

@@ -65,11 +65,6 @@ fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> DataError + '_ {
     }
 }
 
-/// 1-based line number of byte offset `at` in `text`.
-fn line_of(text: &str, at: usize) -> usize {
-    text[..at].matches('\n').count() + 1
-}
-
 fn invalid(path: &Path, message: impl Into<String>) -> DataError {
     DataError::Invalid {
         path: path.to_path_buf(),
@@ -282,14 +277,11 @@ impl Dataset {
 fn read_manifest(path: &Path) -> Result<Manifest, DataError> {
     let text = fs::read_to_string(path).map_err(io_error(path))?;
     toml::from_str(&text).map_err(|err| {
-        let line = err
-            .span()
-            .map(|span| line_of(&text, span.start))
-            .unwrap_or(1);
+        let (line, message) = crate::toml_input::error_at(&text, &err);
         DataError::Malformed {
             path: path.to_path_buf(),
             line,
-            message: err.message().to_string(),
+            message,
         }
     })
 }
@@ -311,6 +303,7 @@ pub struct Meta {
     /// Trajectory id (the folder name).
     pub id: String,
     /// Short side and long side of the package (m).
+    #[serde(deserialize_with = "crate::toml_input::array")]
     pub package_size_m: [f64; 2],
     /// Film mass of the package (kg).
     pub package_mass_kg: f64,
@@ -323,8 +316,10 @@ pub struct Meta {
     /// Package plus object (kg).
     pub total_mass_kg: f64,
     /// Centre of the suction cups at the start of the recording (m, world frame).
+    #[serde(deserialize_with = "crate::toml_input::array")]
     pub initial_suction_cup_position_m: [f64; 3],
     /// Package markers seen in the first recorded frame (m, world frame), used to place the package.
+    #[serde(deserialize_with = "crate::toml_input::list")]
     pub initial_marker_positions_m: Vec<[f64; 3]>,
 }
 
@@ -597,13 +592,13 @@ fn read_markers(path: &Path, times: &[f64]) -> Result<MarkerFrames, DataError> {
 
 fn read_meta(path: &Path) -> Result<Meta, DataError> {
     let text = fs::read_to_string(path).map_err(io_error(path))?;
-    let meta: Meta = toml::from_str(&text).map_err(|err| DataError::Malformed {
-        path: path.to_path_buf(),
-        line: err
-            .span()
-            .map(|span| line_of(&text, span.start))
-            .unwrap_or(1),
-        message: err.message().to_string(),
+    let meta: Meta = toml::from_str(&text).map_err(|err| {
+        let (line, message) = crate::toml_input::error_at(&text, &err);
+        DataError::Malformed {
+            path: path.to_path_buf(),
+            line,
+            message,
+        }
     })?;
     let positive = [
         ("package_size_m[0]", meta.package_size_m[0]),

@@ -78,6 +78,7 @@ pub struct ConversionConfig {
     pub markers: MarkerSource,
     /// Suction-cup centre in the tool's local frame (m), added to the tool pose of the first frame
     /// to get `initial_suction_cup_position_m`.
+    #[serde(deserialize_with = "crate::toml_input::array")]
     pub tool_to_cup_m: [f64; 3],
     /// Keep only the frames from the start to the end of the tool's motion (plus margins).
     pub trim_to_motion: bool,
@@ -110,6 +111,7 @@ impl Default for ConversionConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct PackageConfig {
     /// Package footprint (short side, long side) in m.
+    #[serde(deserialize_with = "crate::toml_input::array")]
     pub size_m: [f64; 2],
     /// Package (film) mass in kg.
     pub mass_kg: f64,
@@ -199,10 +201,8 @@ impl ImportConfig {
         let text = std::fs::read_to_string(path)
             .map_err(|e| config_err(format!("cannot read file: {e}")))?;
         let config: ImportConfig = toml::from_str(&text).map_err(|e| {
-            let line = e
-                .span()
-                .map_or(1, |span| text[..span.start].matches('\n').count() + 1);
-            config_err(format!("line {line}: {}", e.message()))
+            let (line, message) = crate::toml_input::error_at(&text, &e);
+            config_err(format!("line {line}: {message}"))
         })?;
         config.validate().map_err(config_err)?;
         Ok(config)
@@ -354,6 +354,8 @@ pub struct RetentionReport {
     pub reidentified_ids: usize,
     /// Median and largest distance (m) of a re-identified id to its predicted position.
     pub reid_distance_m: (f64, f64),
+    /// Candidate joins refused because the new id lies on the other film sheet.
+    pub refused_across_sheets: usize,
     /// Physical marker tracks kept.
     pub tracks_kept: usize,
     /// Tracks dropped as too short-lived (spurious reflections).
@@ -415,12 +417,13 @@ impl fmt::Display for RetentionReport {
         )?;
         write!(
             f,
-            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
+            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} candidate joins refused as on the other sheet; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
             self.input_ids,
             self.tracks_kept,
             self.reidentified_ids,
             1e3 * self.reid_distance_m.0,
             1e3 * self.reid_distance_m.1,
+            self.refused_across_sheets,
             self.short_tracks_dropped,
             self.markers_per_frame.0,
             self.markers_per_frame.1,
@@ -767,6 +770,7 @@ pub fn convert_with_robot(
         input_ids: cleaned.input_ids,
         reidentified_ids: cleaned.reidentified_ids,
         reid_distance_m: median_and_max(&cleaned.reid_distances_m),
+        refused_across_sheets: cleaned.refused_across_sheets,
         tracks_kept: cleaned
             .tracks
             .iter()

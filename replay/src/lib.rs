@@ -48,4 +48,7 @@ pub enum ReplayError {
     /// An unknown parameter name.
     #[error("unknown simulator parameter `{0}`")]
     UnknownParameter(String),
+    /// The observer asked the rollout to stop ([`Observer::stop`]).
+    #[error("the rollout was stopped")]
+    Stopped,
 }

@@ -126,6 +126,11 @@ pub trait Observer {
     fn frame(&mut self, _observation: &FrameObservation) {}
     /// Called after every stepping chunk with simulated substeps done and planned.
     fn progress(&mut self, _done: u64, _total: u64) {}
+    /// Asked after every stepping chunk: `true` ends the rollout with [`ReplayError::Stopped`]
+    /// (e.g. the user pressed Ctrl-C).
+    fn stop(&mut self) -> bool {
+        false
+    }
 }
 
 impl Observer for () {}
@@ -245,6 +250,9 @@ pub fn rollout(
             }
         }
         observer.progress(substep, total);
+        if observer.stop() {
+            return Err(ReplayError::Stopped);
+        }
         if (0..sim.num_envs()).all(|env| sim.is_frozen(env)) {
             break; // every environment finished or diverged
         }
@@ -344,6 +352,42 @@ mod tests {
         let out = rollout(&model, std::slice::from_ref(&target), &[candidate], &mut ()).unwrap();
         assert!(out[0][0].diverged.is_none());
         assert_eq!(out[0][0].loss.frames.len(), target.times.len());
+    }
+
+    #[test]
+    fn an_observer_can_stop_the_rollout() {
+        /// Stops once `after` frames were compared.
+        struct StopAfter {
+            frames: usize,
+            after: usize,
+        }
+        impl Observer for StopAfter {
+            fn frame(&mut self, _observation: &FrameObservation) {
+                self.frames += 1;
+            }
+            fn stop(&mut self) -> bool {
+                self.frames >= self.after
+            }
+        }
+        let mut scene = load_scene("reference", Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        scene.health.object_outside = false;
+        let model = Arc::new(Model::new(&scene).unwrap());
+        let target = Target::new(&recorded("HHHHH"), Some(0.05), false).unwrap();
+        let candidate = Candidate::of_scene(&scene);
+        let mut observer = StopAfter {
+            frames: 0,
+            after: 3,
+        };
+        let stopped = rollout(
+            &model,
+            std::slice::from_ref(&target),
+            &[candidate],
+            &mut observer,
+        );
+        assert!(matches!(stopped, Err(ReplayError::Stopped)));
+        assert_eq!(observer.frames, 3, "the rollout goes on no further");
+        assert!(target.times.len() > 3);
     }
 
     #[test]

@@ -110,20 +110,6 @@ impl Params {
     }
 }
 
-/// A fixed-length array that must have exactly `N` values (serde's arrays ignore extra ones, so
-/// `grid = [16, 19, 3]` would otherwise read as 16 x 19).
-fn exact_array<'de, D, T, const N: usize>(deserializer: D) -> Result<[T; N], D::Error>
-where
-    D: serde::Deserializer<'de>,
-    T: Deserialize<'de>,
-{
-    let values = Vec::<T>::deserialize(deserializer)?;
-    let len = values.len();
-    values.try_into().map_err(|_| {
-        serde::de::Error::invalid_length(len, &format!("an array of {N} numbers").as_str())
-    })
-}
-
 /// The two-layer package.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -131,10 +117,10 @@ pub struct PackageConfig {
     /// Vertices per layer: [along the short side (world z), along the long side (world x)].
     /// Table 2 sizes are [11, 13], [16, 19], [21, 25], [26, 31]; the reference "marker grid 6x7
     /// with p particles in between" is [6 + 5p, 7 + 6p].
-    #[serde(deserialize_with = "exact_array")]
+    #[serde(deserialize_with = "crate::exact::array")]
     pub grid: [usize; 2],
     /// Package size [short side, long side] in m.
-    #[serde(deserialize_with = "exact_array")]
+    #[serde(deserialize_with = "crate::exact::array")]
     pub size_m: [f32; 2],
     /// Distance between the two layers at build time (m).
     pub thickness_m: f32,
@@ -756,7 +742,9 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(
-                err.contains("bad.toml") && err.contains("grid") && err.contains("array of 2"),
+                err.contains("bad.toml")
+                    && err.contains("grid")
+                    && err.contains("array of length 2"),
                 "{err}"
             );
         }

@@ -145,6 +145,9 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         out_dir.display()
     );
     let started = Instant::now();
+    // A signal stops the rollout of the current batch (whose rows are not logged) and the
+    // calibration; the log and the other files stay whole, and the next run resumes.
+    let _cooperation = crate::interrupt::Cooperation::start();
     let best = driver::run(&plan, &mut objective, |report| {
         batch_base.store(
             (report.batch as u64 + 1) * TICKS_PER_BATCH,
@@ -255,6 +258,10 @@ impl Observer for BarObserver {
         self.bar.set_position(
             self.batch_base.load(Ordering::Relaxed) + within.min(TICKS_PER_BATCH - 1),
         );
+    }
+
+    fn stop(&mut self) -> bool {
+        crate::interrupt::requested()
     }
 }
 

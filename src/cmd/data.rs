@@ -82,6 +82,9 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         )));
     }
 
+    // From here on a signal stops the import between two takes: every trajectory folder written
+    // by then is whole and listed, and none is half-written.
+    let _cooperation = crate::interrupt::Cooperation::start();
     // What an interrupted earlier import left behind, before the manifest is read: a trajectory
     // folder moved aside is put back first.
     for line in clean_leftovers(&args.out).map_err(input_error)? {
@@ -99,9 +102,11 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         .takes
         .par_iter()
         .zip(&robots)
-        .map(|(path, robot)| import_take_with_robot(path, robot.as_deref(), &config))
-        .collect::<Result<_, _>>()
-        .map_err(input_error)?;
+        .map(|(path, robot)| {
+            crate::interrupt::check()?;
+            import_take_with_robot(path, robot.as_deref(), &config).map_err(input_error)
+        })
+        .collect::<anyhow::Result<_>>()?;
 
     let mut total = MarkerRetention::default();
     let (mut frames_total, mut frames_kept) = (0, 0);
@@ -130,12 +135,13 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
     let created = !args.out.exists();
     std::fs::create_dir_all(&args.out)
         .map_err(|err| input_error(format!("{}: {err}", args.out.display())))?;
-    if let Err(err) = write_takes(&args.out, &imported, &mut entries) {
-        if created {
-            // Best effort: a folder this run created and left empty goes again.
-            let _ = std::fs::remove_dir(&args.out);
-        }
-        return Err(input_error(err));
+    let written = write_takes(&args.out, &imported, &mut entries);
+    if !matches!(written, Ok(true)) && created {
+        // Best effort: a folder this run created and left empty goes again.
+        let _ = std::fs::remove_dir(&args.out);
+    }
+    if !written.map_err(input_error)? {
+        return Err(crate::interrupt::Interrupted.into());
     }
     let written = imported.iter().filter(|t| t.include).count();
     println!(
@@ -148,13 +154,17 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
 
 /// Writes the included takes into `out`. Each trajectory folder appears whole (written beside it,
 /// then renamed), and its manifest entry only after it: an interrupted import leaves the takes
-/// finished so far, complete and listed, and leftovers that the next run removes.
+/// finished so far, complete and listed, and leftovers that the next run removes. Stops between
+/// two takes when a signal asks it to; returns whether it wrote them all.
 fn write_takes(
     out: &std::path::Path,
     imported: &[ImportedTake],
     entries: &mut Vec<ManifestEntry>,
-) -> Result<(), DataError> {
+) -> Result<bool, DataError> {
     for take in imported.iter().filter(|t| t.include) {
+        if crate::interrupt::requested() {
+            return Ok(false);
+        }
         take.trajectory.save_folder(out)?;
         entries.retain(|e| e.id != take.entry.id);
         entries.push(take.entry.clone());
@@ -163,7 +173,7 @@ fn write_takes(
     if !out.join("manifest.toml").exists() {
         write_manifest(out, entries)?;
     }
-    Ok(())
+    Ok(true)
 }
 
 /// The robot file of each take (in the order of `ids`), matched by the name

@@ -87,6 +87,8 @@ pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
         .as_ref()
         .ok_or_else(|| input_error("--params: expected a scene TOML file"))?;
     let scene = SceneConfig::load(params_path).map_err(input_error)?;
+    // A signal stops the rollouts; the pictures and summary.json are written whole or not at all.
+    let _cooperation = crate::interrupt::Cooperation::start();
     // clap's `requires` does not apply to options with a default, so the defaults are set here.
     let split = args.split.as_deref().unwrap_or("test");
     let data = args
@@ -384,6 +386,10 @@ impl Observer for Progress {
         self.bar.set_length(total.max(1));
         self.bar.set_position(done);
     }
+
+    fn stop(&mut self) -> bool {
+        crate::interrupt::requested()
+    }
 }
 
 /// One pictured instant of one trajectory.
@@ -536,5 +542,9 @@ impl Observer for Pictures {
 
     fn progress(&mut self, done: u64, total: u64) {
         self.progress.progress(done, total);
+    }
+
+    fn stop(&mut self) -> bool {
+        self.progress.stop()
     }
 }

@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::Context;
 
 use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
-use rlpkg_agents::{AgentError, Trainer};
+use rlpkg_agents::Trainer;
 use rlpkg_env::transport::{
     load_paths, load_scene, recorded_timings, run_traced_episodes, OutcomeSummary, TracePoint,
     TransportConfig, TransportPath, ID,
@@ -73,6 +73,9 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
             "--scripted {bad}: expected time scales in (0, 10]"
         )));
     }
+    // A signal stops the episodes at the next control step; the plots, the GIF and summary.json
+    // are written whole or not at all.
+    let _cooperation = crate::interrupt::Cooperation::start();
     let config = trainer.config();
     let table = config
         .transport
@@ -96,14 +99,16 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
     let mut first_episode: Vec<(String, Vec<TracePoint>)> = Vec::new();
     let mut env = make().map_err(input_error)?;
     let (outcomes, mut traces) =
-        run_traced_episodes::<AgentError>(&mut env, seed, &[0], |_, obs| {
+        run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |_, obs| {
+            crate::interrupt::check()?;
             Ok(policy.act(obs, episodes))
         })?;
     rows.push(OutcomeSummary::of("policy", &outcomes));
     first_episode.push(("policy".into(), traces.remove(0)));
     for &scale in scales {
         let mut env = make().map_err(input_error)?;
-        let (outcomes, _) = run_traced_episodes::<EnvError>(&mut env, seed, &[], |env, _| {
+        let (outcomes, _) = run_traced_episodes::<anyhow::Error>(&mut env, seed, &[], |env, _| {
+            crate::interrupt::check()?;
             Ok(env.scripted_actions(scale))
         })?;
         rows.push(OutcomeSummary::of(&format!("scripted x{scale}"), &outcomes));
@@ -118,7 +123,8 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
         long.time_limit_s = long.time_limit_s.max(longest_timing_s(&timings) * 1.25);
         let mut env = Transport::new(long, episodes, &config.source).map_err(input_error)?;
         let (outcomes, mut traces) =
-            run_traced_episodes::<EnvError>(&mut env, seed, &[0], |env, _| {
+            run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |env, _| {
+                crate::interrupt::check()?;
                 Ok(env.timed_actions(&timings, 1.0))
             })?;
         rows.push(OutcomeSummary::of(
@@ -163,13 +169,15 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
         let mut drivers = Vec::new();
         let mut env = Transport::new(held.clone(), 1, &config.source).map_err(input_error)?;
         let (outcomes, mut traces) =
-            run_traced_episodes::<AgentError>(&mut env, seed, &[0], |_, obs| {
+            run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |_, obs| {
+                crate::interrupt::check()?;
                 Ok(policy.act(obs, 1))
             })?;
         trajectory_rows.push(OutcomeSummary::of(&format!("{id} policy"), &outcomes));
         drivers.push(("policy".to_string(), traces.remove(0)));
         let (outcomes, mut traces) =
-            run_traced_episodes::<EnvError>(&mut env, seed, &[0], |env, _| {
+            run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |env, _| {
+                crate::interrupt::check()?;
                 Ok(env.scripted_actions(1.0))
             })?;
         trajectory_rows.push(OutcomeSummary::of(&format!("{id} recorded"), &outcomes));
@@ -328,12 +336,17 @@ fn render_beside_medium(
 ) -> anyhow::Result<()> {
     use crate::render::{write_png_side_by_side, Bounds, Disc, Frame, GifWriter, View};
     let mut env = Transport::new(transport.clone(), 1, source).map_err(input_error)?;
-    let by_policy = play::<AgentError>(&mut env, seed, |_, obs| Ok(policy.act(obs, 1)))?;
+    let by_policy = play::<anyhow::Error>(&mut env, seed, |_, obs| {
+        crate::interrupt::check()?;
+        Ok(policy.act(obs, 1))
+    })?;
     let mut slow = transport.clone();
     slow.time_limit_s = slow.time_limit_s.max(longest_timing_s(medium) * 1.25);
     let mut env = Transport::new(slow, 1, source).map_err(input_error)?;
-    let by_recording =
-        play::<EnvError>(&mut env, seed, |env, _| Ok(env.timed_actions(medium, 1.0)))?;
+    let by_recording = play::<anyhow::Error>(&mut env, seed, |env, _| {
+        crate::interrupt::check()?;
+        Ok(env.timed_actions(medium, 1.0))
+    })?;
     let model = env.simulator().model().clone();
     let package = model.num_package;
     let triangles: Vec<[u32; 3]> = model.package_triangles.iter().map(|t| t.idx).collect();
@@ -348,9 +361,8 @@ fn render_beside_medium(
     by_policy[0].positions[..package]
         .iter()
         .for_each(|&p| close_up.include(p));
-    let (low, high) = (close_up.min, close_up.max);
-    close_up.include([low[0], low[1] - 0.08, low[2]]);
-    close_up.include(high);
+    // Room below the package for it to sag around the disc.
+    close_up.include(close_up.min - 0.08 * glam::Vec3::Y);
     let (scene, close_up) = (scene.padded(0.03), close_up.padded(0.02));
     const PANEL: (u32, u32) = (640, 360);
     let view = View::new(&scene, &close_up, PANEL.0, PANEL.1);
@@ -371,6 +383,7 @@ fn render_beside_medium(
     ];
     let steps = by_policy.len().max(by_recording.len());
     for k in 0..steps {
+        crate::interrupt::check()?;
         let snapshots = [&by_policy, &by_recording].map(|s| &s[k.min(s.len() - 1)]);
         let frames: Vec<Frame> = snapshots
             .iter()

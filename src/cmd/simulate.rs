@@ -22,6 +22,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
+use glam::{DVec3, Vec3};
 use indicatif::{ProgressBar, ProgressStyle};
 use rlpkg_mocap::{load_trajectory, Trajectory};
 use rlpkg_replay::loss::chamfer_distance;
@@ -101,6 +102,9 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("runs/simulate-{}", recording.id)));
     let mut replay = Replay::new(&recording, &config, &args)?;
+    // From here on a signal stops the replay between two pictures; the unfinished GIF removes
+    // its temporary file when dropped, and nothing else is open for writing then.
+    let _cooperation = crate::interrupt::Cooperation::start();
     prepare_output(&out)?;
     println!(
         "simulate {}: {} package + {} cup particles, dt = 1/{} s, {:.2} s rest + {:.3} s replay ({} substeps)",
@@ -382,6 +386,7 @@ impl Replay {
         let (disc_radius, disc_thickness) =
             (self.model.disc.radius, 2.0 * self.model.disc.half_height);
         for stop in self.stops.clone() {
+            crate::interrupt::check()?;
             let ahead = stop.substep.saturating_sub(self.sim.substep());
             self.sim.step(ahead);
             progress.inc(ahead);
@@ -437,6 +442,7 @@ impl Replay {
             }
         }
         progress.finish_and_clear();
+        crate::interrupt::check()?;
         if let Some(writer) = gif {
             let frames = writer.frames();
             outcome.gif = Some((writer.finish().map_err(output_error)?, frames));
@@ -511,12 +517,12 @@ fn picture_bounds(recording: &Trajectory, sim: &Simulator, last_frame: usize) ->
     let tool = &recording.tool.position;
     let (low, high) = (close_up.min, close_up.max);
     for p in &tool[..=last_frame] {
-        let shift = [0, 1, 2].map(|k| (p[k] - tool[0][k]) as f32);
-        scene.include([0, 1, 2].map(|k| low[k] + shift[k]));
-        scene.include([0, 1, 2].map(|k| high[k] + shift[k]));
+        let shift = (DVec3::from(*p) - DVec3::from(tool[0])).as_vec3();
+        scene.include(low + shift);
+        scene.include(high + shift);
     }
     // Room below the package for it to sag around the disc.
-    close_up.include([low[0], low[1] - 0.08, low[2]]);
+    close_up.include(low - 0.08 * Vec3::Y);
     (scene.padded(0.03), close_up.padded(0.02))
 }
 

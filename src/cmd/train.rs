@@ -80,8 +80,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
     };
     let stop_after = args.stop_after.map(|s| s as usize);
+    // A signal ends training after the current update, which is checkpointed: `--resume`
+    // continues from it.
+    let _cooperation = crate::interrupt::Cooperation::start();
     let summary = trainer
-        .train(&run_dir, stop_after, !args.quiet)
+        .train_until(
+            &run_dir,
+            stop_after,
+            !args.quiet,
+            &crate::interrupt::requested,
+        )
         .map_err(wrap)
         .with_context(|| format!("training {}", run_dir.display()))?;
     let total = trainer.config().num_updates();
@@ -93,6 +101,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         summary.wall_seconds,
         summary.recent_mean_return
     );
+    if summary.stopped {
+        println!(
+            "stopped at update {}, checkpointed: continue with `rlpkg train --resume {}`",
+            summary.updates,
+            run_dir.display()
+        );
+        return Err(crate::interrupt::Interrupted.into());
+    }
     if summary.updates == total && !args.no_export {
         let mut graph = load_policy_graph(&run_dir).map_err(wrap)?;
         // Like `rlpkg export` without --with-value: the actor (and normaliser) only.

@@ -1,52 +1,53 @@
 //! Cameras that map world points (metres, Y up) to pixels: a 3/4 perspective and two orthographic views.
 
+use glam::Vec3;
+
 /// Axis-aligned box in world coordinates that a view must show for a whole animation.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds {
     /// Smallest x, y, z seen.
-    pub min: [f32; 3],
+    pub min: Vec3,
     /// Largest x, y, z seen.
-    pub max: [f32; 3],
+    pub max: Vec3,
 }
 
 impl Bounds {
     /// An empty box; [`Bounds::include`] grows it.
     pub fn empty() -> Self {
         Self {
-            min: [f32::INFINITY; 3],
-            max: [f32::NEG_INFINITY; 3],
+            min: Vec3::INFINITY,
+            max: Vec3::NEG_INFINITY,
         }
     }
 
     /// Grows the box to hold `point`; non-finite points are ignored so one bad sample cannot blow up a view.
-    pub fn include(&mut self, point: [f32; 3]) {
-        if point.iter().all(|v| v.is_finite()) {
-            self.min = [0, 1, 2].map(|axis| self.min[axis].min(point[axis]));
-            self.max = [0, 1, 2].map(|axis| self.max[axis].max(point[axis]));
+    pub fn include(&mut self, point: impl Into<Vec3>) {
+        let point = point.into();
+        if point.is_finite() {
+            self.min = self.min.min(point);
+            self.max = self.max.max(point);
         }
     }
 
     /// Grows the box by `margin` metres on every side.
     pub fn padded(self, margin: f32) -> Self {
         Self {
-            min: self.min.map(|v| v - margin),
-            max: self.max.map(|v| v + margin),
+            min: self.min - margin,
+            max: self.max + margin,
         }
     }
 
-    fn center(&self) -> [f32; 3] {
-        [0, 1, 2].map(|axis| 0.5 * (self.min[axis] + self.max[axis]))
+    fn center(&self) -> Vec3 {
+        0.5 * (self.min + self.max)
     }
 
-    fn corners(&self) -> [[f32; 3]; 8] {
+    fn corners(&self) -> [Vec3; 8] {
         std::array::from_fn(|k| {
-            [0, 1, 2].map(|axis| {
-                if k >> axis & 1 == 0 {
-                    self.min[axis]
-                } else {
-                    self.max[axis]
-                }
-            })
+            Vec3::select(
+                glam::BVec3::new(k & 1 == 0, k & 2 == 0, k & 4 == 0),
+                self.min,
+                self.max,
+            )
         })
     }
 }
@@ -67,10 +68,10 @@ pub struct Panel {
 /// A camera looking at a [`Bounds`] box, fitted so that the whole box fills its [`Panel`].
 #[derive(Clone, Debug)]
 pub struct Camera {
-    target: [f32; 3],
-    right: [f32; 3],
-    up: [f32; 3],
-    forward: [f32; 3],
+    target: Vec3,
+    right: Vec3,
+    up: Vec3,
+    forward: Vec3,
     /// Eye distance from the target for a perspective camera; `None` for an orthographic one.
     eye_distance: Option<f32>,
     pixels_per_metre: f32,
@@ -81,8 +82,8 @@ impl Camera {
     /// Orthographic camera looking along `forward` with `up` pointing up on screen.
     pub fn orthographic(
         bounds: &Bounds,
-        forward: [f32; 3],
-        up: [f32; 3],
+        forward: Vec3,
+        up: Vec3,
         panel: Panel,
         margin_px: f32,
     ) -> Self {
@@ -100,12 +101,12 @@ impl Camera {
         margin_px: f32,
     ) -> Self {
         let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
-        let towards_eye = [az.sin() * el.cos(), el.sin(), az.cos() * el.cos()];
-        let diagonal = norm(sub(bounds.max, bounds.min)).max(1e-3);
+        let towards_eye = Vec3::new(az.sin() * el.cos(), el.sin(), az.cos() * el.cos());
+        let diagonal = (bounds.max - bounds.min).length().max(1e-3);
         Self::fitted(
             bounds,
-            towards_eye.map(|v| -v),
-            [0.0, 1.0, 0.0],
+            -towards_eye,
+            Vec3::Y,
             Some(distance_factor * diagonal),
             panel,
             margin_px,
@@ -114,15 +115,15 @@ impl Camera {
 
     fn fitted(
         bounds: &Bounds,
-        forward: [f32; 3],
-        up_hint: [f32; 3],
+        forward: Vec3,
+        up_hint: Vec3,
         eye_distance: Option<f32>,
         panel: Panel,
         margin_px: f32,
     ) -> Self {
-        let forward = normalize(forward);
-        let right = normalize(cross(forward, up_hint));
-        let up = cross(right, forward);
+        let forward = forward.normalize_or_zero();
+        let right = forward.cross(up_hint).normalize_or_zero();
+        let up = right.cross(forward);
         let mut camera = Self {
             target: bounds.center(),
             right,
@@ -157,9 +158,9 @@ impl Camera {
     }
 
     /// Image-plane coordinates (metres at the target's depth, y up) and depth along the view direction.
-    fn to_image_plane(&self, point: [f32; 3]) -> ([f32; 2], f32) {
-        let d = sub(point, self.target);
-        let (x, y, z) = (dot(d, self.right), dot(d, self.up), dot(d, self.forward));
+    fn to_image_plane(&self, point: Vec3) -> ([f32; 2], f32) {
+        let d = point - self.target;
+        let (x, y, z) = (d.dot(self.right), d.dot(self.up), d.dot(self.forward));
         match self.eye_distance {
             Some(distance) => {
                 let depth = (z + distance).max(1e-4);
@@ -170,8 +171,8 @@ impl Camera {
     }
 
     /// Pixel column, pixel row (down) and depth (larger is farther from the viewer) of a world point.
-    pub fn project(&self, point: [f32; 3]) -> (f32, f32, f32) {
-        let ([x, y], depth) = self.to_image_plane(point);
+    pub fn project(&self, point: impl Into<Vec3>) -> (f32, f32, f32) {
+        let ([x, y], depth) = self.to_image_plane(point.into());
         (
             self.origin_px[0] + self.pixels_per_metre * x,
             self.origin_px[1] - self.pixels_per_metre * y,
@@ -180,7 +181,7 @@ impl Camera {
     }
 
     /// The same camera aimed at `target`: the new target lands where the old one did on screen.
-    pub fn aimed_at(&self, target: [f32; 3]) -> Self {
+    pub fn aimed_at(&self, target: Vec3) -> Self {
         Self {
             target,
             ..self.clone()
@@ -190,40 +191,6 @@ impl Camera {
     /// Pixels per metre at the target's depth (exact everywhere for an orthographic camera).
     pub fn pixels_per_metre(&self) -> f32 {
         self.pixels_per_metre
-    }
-}
-
-/// `a - b`.
-pub fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-/// Dot product.
-pub fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-/// Cross product `a x b`.
-pub fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-/// Euclidean length.
-pub fn norm(a: [f32; 3]) -> f32 {
-    dot(a, a).sqrt()
-}
-
-/// `a / |a|`, or zero for a zero vector.
-pub fn normalize(a: [f32; 3]) -> [f32; 3] {
-    let length = norm(a);
-    if length > 0.0 {
-        a.map(|v| v / length)
-    } else {
-        [0.0; 3]
     }
 }
 
@@ -249,14 +216,13 @@ mod tests {
     fn bounds_ignore_non_finite_points_and_pad() {
         let mut bounds = unit_box();
         bounds.include([f32::NAN, 5.0, 5.0]);
-        assert_eq!(bounds.max, [1.0, 1.0, 1.0]);
-        assert_eq!(bounds.padded(0.5).min, [-0.5, -0.5, -0.5]);
+        assert_eq!(bounds.max, Vec3::ONE);
+        assert_eq!(bounds.padded(0.5).min, Vec3::splat(-0.5));
     }
 
     #[test]
     fn side_view_maps_x_right_y_up_and_ignores_z() {
-        let camera =
-            Camera::orthographic(&unit_box(), [0.0, 0.0, -1.0], [0.0, 1.0, 0.0], PANEL, 0.0);
+        let camera = Camera::orthographic(&unit_box(), Vec3::NEG_Z, Vec3::Y, PANEL, 0.0);
         // The box is 1 x 1 in the side view, so it fills the panel height: 200 px per metre.
         assert!((camera.pixels_per_metre() - 200.0).abs() < 1e-3);
         let (cx, cy, _) = camera.project([0.5, 0.5, 0.3]);
@@ -271,8 +237,7 @@ mod tests {
 
     #[test]
     fn side_view_along_x_puts_minus_z_to_the_right() {
-        let camera =
-            Camera::orthographic(&unit_box(), [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], PANEL, 0.0);
+        let camera = Camera::orthographic(&unit_box(), Vec3::NEG_X, Vec3::Y, PANEL, 0.0);
         let (xa, ya, _) = camera.project([0.5, 0.5, 0.0]);
         let (xb, yb, _) = camera.project([0.5, 0.5, 1.0]);
         assert!(xa > xb + 150.0 && (ya - yb).abs() < 1e-4);
@@ -282,8 +247,7 @@ mod tests {
 
     #[test]
     fn top_view_puts_plus_z_towards_the_bottom() {
-        let camera =
-            Camera::orthographic(&unit_box(), [0.0, -1.0, 0.0], [0.0, 0.0, -1.0], PANEL, 0.0);
+        let camera = Camera::orthographic(&unit_box(), Vec3::NEG_Y, Vec3::NEG_Z, PANEL, 0.0);
         let (xa, ya, _) = camera.project([0.2, 0.5, 0.0]);
         let (xb, yb, _) = camera.project([0.2, 0.5, 1.0]);
         assert!((xa - xb).abs() < 1e-4);
@@ -302,20 +266,19 @@ mod tests {
             assert!((59.9..=240.1).contains(&y), "y {y}");
         }
         // A unit segment parallel to the image plane looks shorter when it is farther away.
-        let toward = camera.forward.map(|v| -v);
-        let right = camera.right;
-        let length_at = |base: [f32; 3]| {
+        let toward = -camera.forward;
+        let length_at = |base: Vec3| {
             let a = camera.project(base);
-            let b = camera.project([base[0] + right[0], base[1] + right[1], base[2] + right[2]]);
+            let b = camera.project(base + camera.right);
             ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
         };
         let centre = bounds.center();
-        let near = [0, 1, 2].map(|k| centre[k] + 0.5 * toward[k]);
-        let far = [0, 1, 2].map(|k| centre[k] - 0.5 * toward[k]);
+        let near = centre + 0.5 * toward;
+        let far = centre - 0.5 * toward;
         assert!(length_at(near) > 1.2 * length_at(far));
         assert!(camera.project(near).2 < camera.project(far).2);
         // Re-aiming moves the new target to the old target's pixel.
-        let moved = camera.aimed_at([5.0, 5.0, 5.0]);
+        let moved = camera.aimed_at(Vec3::splat(5.0));
         let (a, b) = (camera.project(centre), moved.project([5.0, 5.0, 5.0]));
         assert!((a.0 - b.0).abs() < 1e-3 && (a.1 - b.1).abs() < 1e-3);
     }

@@ -4,7 +4,9 @@
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::camera::{cross, dot, normalize, sub, Bounds, Camera, Panel};
+use glam::Vec3;
+
+use super::camera::{Bounds, Camera, Panel};
 use super::{Frame, RenderError};
 
 const BACKGROUND: RGBColor = RGBColor(250, 250, 248);
@@ -19,7 +21,7 @@ const SIMULATED_MARKER: RGBColor = RGBColor(20, 140, 60);
 /// Sheets are see-through so the disc inside the envelope stays visible.
 const PACKAGE_ALPHA: f64 = 0.45;
 /// Light comes from above, slightly from the front-left; shading is two-sided.
-const LIGHT: [f32; 3] = [-0.3, 0.9, 0.3];
+const LIGHT: Vec3 = Vec3::new(-0.3, 0.9, 0.3);
 const MARGIN_PX: f32 = 14.0;
 /// Sides of the polygon that stands in for the disc's circular faces.
 const DISC_SEGMENTS: usize = 36;
@@ -66,12 +68,11 @@ impl View {
             height: panel.height - room,
         };
         // Look across the longer horizontal travel, so the side view shows the motion.
-        let (side_forward, side_title) =
-            if scene.max[2] - scene.min[2] > scene.max[0] - scene.min[0] {
-                ([-1.0, 0.0, 0.0], "side (-Z right, Y up)")
-            } else {
-                ([0.0, 0.0, -1.0], "side (X right, Y up)")
-            };
+        let (side_forward, side_title) = if scene.max.z - scene.min.z > scene.max.x - scene.min.x {
+            (Vec3::NEG_X, "side (-Z right, Y up)")
+        } else {
+            (Vec3::NEG_Z, "side (X right, Y up)")
+        };
         let sizes = Sizes::for_height(height);
         Self {
             width,
@@ -94,7 +95,7 @@ impl View {
                     Camera::orthographic(
                         scene,
                         side_forward,
-                        [0.0, 1.0, 0.0],
+                        Vec3::Y,
                         title_room(side, sizes.text(22)),
                         MARGIN_PX,
                     ),
@@ -104,8 +105,8 @@ impl View {
                 (
                     Camera::orthographic(
                         scene,
-                        [0.0, -1.0, 0.0],
-                        [0.0, 0.0, -1.0],
+                        Vec3::NEG_Y,
+                        Vec3::NEG_Z,
                         title_room(top, sizes.text(22)),
                         MARGIN_PX,
                     ),
@@ -294,18 +295,22 @@ fn draw_panel<DB: DrawingBackend>(
 }
 
 /// Mean of the finite points, if any.
-fn centroid(points: &[[f32; 3]]) -> Option<[f32; 3]> {
-    let finite = points.iter().filter(|p| p.iter().all(|v| v.is_finite()));
-    let (sum, count) = finite.fold(([0.0f64; 3], 0usize), |(sum, count), p| {
-        ([0, 1, 2].map(|k| sum[k] + f64::from(p[k])), count + 1)
+fn centroid(points: &[[f32; 3]]) -> Option<Vec3> {
+    let finite = points
+        .iter()
+        .map(|&p| Vec3::from(p))
+        .filter(|p| p.is_finite());
+    let (sum, count) = finite.fold((glam::DVec3::ZERO, 0usize), |(sum, count), p| {
+        (sum + p.as_dvec3(), count + 1)
     });
-    (count > 0).then(|| sum.map(|v| (v / count as f64) as f32))
+    (count > 0).then(|| (sum / count as f64).as_vec3())
 }
 
 /// Lambert shading with a two-sided normal, so both faces of a sheet look lit.
 fn shade(base: RGBColor, [a, b, c]: [[f32; 3]; 3]) -> RGBColor {
-    let normal = normalize(cross(sub(b, a), sub(c, a)));
-    let light = dot(normal, normalize(LIGHT)).abs();
+    let (a, b, c) = (Vec3::from(a), Vec3::from(b), Vec3::from(c));
+    let normal = (b - a).cross(c - a).normalize_or_zero();
+    let light = normal.dot(LIGHT.normalize()).abs();
     let factor = 0.45 + 0.55 * light;
     let scale = |v: u8| (v as f32 * factor).round().clamp(0.0, 255.0) as u8;
     RGBColor(scale(base.0), scale(base.1), scale(base.2))

@@ -13,13 +13,12 @@ pub mod plot;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use glam::Vec3;
 use plotters::prelude::*;
 
 pub use animation::GifWriter;
 pub use camera::Bounds;
 pub use draw::View;
-
-use camera::cross;
 
 /// DejaVu Sans 2.37 (Bitstream Vera licence, see `DejaVuSans-LICENSE.txt` beside it).
 static FONT_BYTES: &[u8] = include_bytes!("DejaVuSans.ttf");
@@ -85,12 +84,8 @@ impl Disc {
     }
 
     fn body_to_world(&self, body: [f32; 3]) -> [f32; 3] {
-        let [x, y, z, w] = self.rotation;
-        let axis = [x, y, z];
-        // v' = v + 2w (q x v) + 2 q x (q x v), valid for a unit quaternion.
-        let t = cross(axis, body).map(|v| 2.0 * v);
-        let u = cross(axis, t);
-        [0, 1, 2].map(|k| self.center[k] + body[k] + w * t[k] + u[k])
+        let rotation = glam::Quat::from_array(self.rotation);
+        (Vec3::from(self.center) + rotation * Vec3::from(body)).to_array()
     }
 }
 

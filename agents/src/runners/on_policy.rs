@@ -71,6 +71,8 @@ pub struct TrainSummary {
     pub recent_mean_return: f32,
     /// Wall time of this call in seconds.
     pub wall_seconds: f64,
+    /// Ended early because the caller's `stop` said so ([`Trainer::train_until`]).
+    pub stopped: bool,
 }
 
 /// PPO training of one configuration: environment, learner, normalisers, random stream, counters.
@@ -480,6 +482,19 @@ impl Trainer {
         stop_after: Option<usize>,
         show_progress: bool,
     ) -> Result<TrainSummary, AgentError> {
+        self.train_until(run_dir, stop_after, show_progress, &|| false)
+    }
+
+    /// As [`Trainer::train`], and asks `stop` after every update: when it says yes, the update just
+    /// done is checkpointed (so a resume continues from it) and training ends early
+    /// ([`TrainSummary::stopped`]).
+    pub fn train_until(
+        &mut self,
+        run_dir: &Path,
+        stop_after: Option<usize>,
+        show_progress: bool,
+        stop: &dyn Fn() -> bool,
+    ) -> Result<TrainSummary, AgentError> {
         let num_updates = self.config.num_updates();
         let last = stop_after.map_or(num_updates, |s| s.min(num_updates));
         let start = Instant::now();
@@ -533,18 +548,31 @@ impl Trainer {
                     self.recent_mean_return()
                 );
             }
-            if self.update.is_multiple_of(self.config.run.checkpoint_every) || self.update == last {
+            let stopped = stop();
+            if self.update.is_multiple_of(self.config.run.checkpoint_every)
+                || self.update == last
+                || stopped
+            {
                 self.events = Some(writer.position()?);
                 self.save_checkpoint(run_dir)?;
             }
+            if stopped {
+                bar.finish_and_clear();
+                return Ok(self.summary(start, true));
+            }
         }
         bar.finish_and_clear();
-        Ok(TrainSummary {
+        Ok(self.summary(start, false))
+    }
+
+    fn summary(&self, start: Instant, stopped: bool) -> TrainSummary {
+        TrainSummary {
             updates: self.update,
             global_step: self.global_step,
             recent_mean_return: self.recent_mean_return(),
             wall_seconds: start.elapsed().as_secs_f64(),
-        })
+            stopped,
+        }
     }
 }
 

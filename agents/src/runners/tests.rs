@@ -42,6 +42,29 @@ fn checkpoint_round_trip_is_bit_identical() {
 }
 
 #[test]
+fn a_stopped_run_checkpoints_the_update_it_stopped_after() {
+    // checkpoint_every = 2: update 3 is checkpointed only because training stops after it.
+    let dir = tempfile::tempdir().unwrap();
+    let mut t = trainer(CARTPOLE_TEST);
+    t.create_run_dir(dir.path()).unwrap();
+    let asked = std::cell::Cell::new(0);
+    let stop = || {
+        asked.set(asked.get() + 1);
+        asked.get() == 3
+    };
+    let summary = t.train_until(dir.path(), None, false, &stop).unwrap();
+    assert!(summary.stopped);
+    assert_eq!((summary.updates, asked.get()), (3, 3));
+    assert_eq!(
+        latest_checkpoint(dir.path()).unwrap().file_name().unwrap(),
+        "update_000003"
+    );
+    let resumed = Trainer::resume(dir.path()).unwrap();
+    assert_eq!((resumed.update, resumed.global_step), (3, 768));
+    assert!(!t.train(dir.path(), None, false).unwrap().stopped);
+}
+
+#[test]
 fn resume_continues_exactly_like_an_uninterrupted_run() {
     let (straight_dir, split_dir) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     let mut straight = trainer(CARTPOLE_TEST);

@@ -17,6 +17,7 @@ pub struct TransportConfig {
     /// and the seal model on.
     pub scene: String,
     /// Package grid `[rows, columns]` (overrides the scene's; coarse grids train faster).
+    #[serde(deserialize_with = "rlpkg_sim::exact::array")]
     pub grid: [usize; 2],
     /// Folder of the recordings (`data/deformable-sim-real`).
     pub recordings: String,
@@ -122,6 +123,7 @@ pub struct RewardWeights {
 #[serde(deny_unknown_fields)]
 pub struct TransportRandomization {
     /// Tilt of the tool at the place pose (degrees), uniform.
+    #[serde(deserialize_with = "rlpkg_sim::exact::array")]
     pub target_tilt_deg: [f64; 2],
     /// Largest offset of the place position (m), uniform in a ball.
     pub goal_jitter_m: f64,
@@ -129,6 +131,16 @@ pub struct TransportRandomization {
     pub start_jitter_m: f64,
     /// Package quantities per settled variant (the simulator's [`Randomization`]).
     pub package: Randomization,
+}
+
+/// The message of an error in the `[transport]` table, naming the key: a table parsed apart from
+/// its file has no line, but the parser keeps the key path (its text ends with `` in `a.b` ``).
+fn table_error(err: &toml::de::Error) -> String {
+    let text = err.to_string();
+    match text.trim_end().rsplit_once("\nin `") {
+        Some((message, key)) => format!("key `transport.{}: {message}", key),
+        None => format!("[transport]: {}", err.message()),
+    }
 }
 
 /// A configuration problem: `key` = `value` in `source`, expected `expected`.
@@ -170,7 +182,7 @@ impl TransportConfig {
                 .try_into()
                 .map_err(|e: toml::de::Error| EnvError::ConfigParse {
                     file: source.to_string(),
-                    message: format!("[transport]: {}", e.message()),
+                    message: table_error(&e),
                 })?;
         config.validate(source)?;
         Ok(config)

@@ -88,6 +88,48 @@ fn info(t: &Transport, env: usize, name: &str) -> f32 {
 }
 
 #[test]
+fn fixed_length_arrays_with_a_wrong_length_name_the_key() {
+    let text = test_table();
+    for (from, to, key, found) in [
+        ("grid = [11, 13]", "grid = [11, 13, 2]", "grid", 3),
+        (
+            "target_tilt_deg = [30.0, 60.0]",
+            "target_tilt_deg = [30.0, 45.0, 60.0]",
+            "randomization.target_tilt_deg",
+            3,
+        ),
+        (
+            "object_mass_kg = [0.287, 0.595]",
+            "object_mass_kg = [0.287]",
+            "randomization.package.object_mass_kg",
+            1,
+        ),
+        (
+            "package_yaw_deg = [-10.0, 10.0]",
+            "package_yaw_deg = [-10.0, 0.0, 10.0]",
+            "randomization.package.package_yaw_deg",
+            3,
+        ),
+        (
+            "k_tri_e = [0.8, 1.25]",
+            "k_tri_e = [0.8, 1.0, 1.25]",
+            "randomization.package.param_scale.k_tri_e",
+            3,
+        ),
+    ] {
+        assert!(text.contains(from), "{from}");
+        let table: toml::Table = toml::from_str(&text.replace(from, to)).unwrap();
+        let err = TransportConfig::from_table(table["transport"].as_table().unwrap(), "t.toml")
+            .unwrap_err()
+            .to_string();
+        let expected = format!(
+            "t.toml: key `transport.{key}`: invalid length {found}, expected an array of length 2"
+        );
+        assert!(err.starts_with(&expected), "{to}: {err}");
+    }
+}
+
+#[test]
 fn configuration_errors_name_the_key_and_the_expected_range() {
     let text = test_table();
     let err = TransportConfig::from_toml_str(

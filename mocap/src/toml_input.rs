@@ -1,0 +1,174 @@
+//! Reading the TOML files of an import (`configs/import.toml`, `manifest.toml`, `meta.toml`):
+//! fixed-length arrays that must have exactly their length (serde fills `[T; N]` from the first N
+//! values of a longer array and drops the rest), and parse errors that name the line and the key.
+
+use serde::{Deserialize, Deserializer};
+
+/// An array read through a `Vec`, so that its length is checked.
+struct Exact<T, const N: usize>([T; N]);
+
+impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exact<T, N> {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let values = Vec::<T>::deserialize(deserializer)?;
+        let len = values.len();
+        values.try_into().map(Exact).map_err(|_| {
+            serde::de::Error::invalid_length(len, &format!("an array of length {N}").as_str())
+        })
+    }
+}
+
+/// `[T; N]` with exactly `N` values (`#[serde(deserialize_with = "...")]`).
+pub(crate) fn array<'de, D, T, const N: usize>(deserializer: D) -> Result<[T; N], D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    Exact::deserialize(deserializer).map(|exact| exact.0)
+}
+
+/// An optional `[T; N]` with exactly `N` values (pair with `#[serde(default)]`).
+pub(crate) fn option<'de, D, T, const N: usize>(deserializer: D) -> Result<Option<[T; N]>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    Option::<Exact<T, N>>::deserialize(deserializer).map(|exact| exact.map(|e| e.0))
+}
+
+/// A list of `[T; N]` with exactly `N` values each.
+pub(crate) fn list<'de, D, T, const N: usize>(deserializer: D) -> Result<Vec<[T; N]>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    Vec::<Exact<T, N>>::deserialize(deserializer)
+        .map(|list| list.into_iter().map(|e| e.0).collect())
+}
+
+/// The 1-based line of a parse error of `text` and its message, which names the key when the
+/// error points into a value: `` key `package.size_m`: invalid length 1, ... ``.
+pub(crate) fn error_at(text: &str, err: &toml::de::Error) -> (usize, String) {
+    let Some(at) = err.span().map(|span| span.start.min(text.len())) else {
+        return (1, err.message().to_string());
+    };
+    let line = text[..at].matches('\n').count() + 1;
+    let message = match key_before(text, at) {
+        Some(key) => format!("key `{key}`: {}", err.message()),
+        None => err.message().to_string(),
+    };
+    (line, message)
+}
+
+/// The dotted key whose value holds byte `at` of `text` (with its `[table]`), if `at` lies in a
+/// value: found by walking back over the arrays that close before `at` to the `=`, on the same
+/// line unless an array that holds `at` spans lines.
+fn key_before(text: &str, at: usize) -> Option<String> {
+    let (mut closed, mut enclosing) = (0usize, 0usize);
+    let mut equals = None;
+    for (i, c) in text[..at].char_indices().rev() {
+        match c {
+            ']' => closed += 1,
+            '[' if closed > 0 => closed -= 1,
+            '[' => enclosing += 1,
+            '\n' if enclosing == 0 => return None,
+            '=' if closed == 0 => {
+                equals = Some(i);
+                break;
+            }
+            _ => {}
+        }
+    }
+    let equals = equals?;
+    let line_start = text[..equals].rfind('\n').map_or(0, |i| i + 1);
+    let key = text[line_start..equals]
+        .rsplit([',', '{'])
+        .next()?
+        .trim()
+        .trim_matches('"');
+    if key.is_empty() {
+        return None;
+    }
+    // The innermost `[table]` header above the key's line.
+    let table = text[..line_start].lines().rev().find_map(|l| {
+        let l = l.trim();
+        (l.starts_with('[') && !l.starts_with("[[") && l.ends_with(']'))
+            .then(|| l.trim_matches(['[', ']']).trim())
+    });
+    Some(match table {
+        Some(table) => format!("{table}.{key}"),
+        None => key.to_string(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)] // only read through Debug
+    struct Fixed {
+        #[serde(deserialize_with = "array")]
+        size: [f64; 2],
+        #[serde(default, deserialize_with = "option")]
+        rotation: Option<[f64; 4]>,
+        #[serde(default, deserialize_with = "list")]
+        points: Vec<[f64; 3]>,
+        #[serde(default)]
+        table: Option<Inner>,
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[allow(dead_code)]
+    struct Inner {
+        #[serde(deserialize_with = "array")]
+        offset: [f64; 3],
+    }
+
+    fn error(text: &str) -> (usize, String) {
+        let err = toml::from_str::<Fixed>(text).unwrap_err();
+        error_at(text, &err)
+    }
+
+    #[test]
+    fn wrong_lengths_name_line_key_and_expected_length() {
+        let good = "size = [1.0, 2.0]\nrotation = [0.0, 0.0, 0.0, 1.0]\npoints = [[1.0, 2.0, 3.0]]\n[table]\noffset = [0.0, 0.0, 0.0]\n";
+        assert!(toml::from_str::<Fixed>(good).is_ok());
+        for (text, line, expected) in [
+            (
+                "size = [1.0, 2.0, 3.0]\n",
+                1,
+                "key `size`: invalid length 3, expected an array of length 2",
+            ),
+            (
+                "size = [1.0, 2.0]\nrotation = [0.0, 0.0, 1.0]\n",
+                2,
+                "key `rotation`: invalid length 3, expected an array of length 4",
+            ),
+            (
+                "size = [1.0, 2.0]\npoints = [[1.0, 2.0, 3.0], [1.0, 2.0, 3.0, 4.0]]\n",
+                2,
+                "key `points`: invalid length 4, expected an array of length 3",
+            ),
+            // A value over several lines: the line of its key.
+            (
+                "size = [1.0, 2.0]\npoints = [\n  [1.0, 2.0, 3.0],\n  [1.0, 2.0],\n]\n",
+                2,
+                "key `points`: invalid length 2, expected an array of length 3",
+            ),
+            (
+                "size = [1.0, 2.0]\n\n[table]\noffset = [0.0, 0.0]\n",
+                4,
+                "key `table.offset`: invalid length 2, expected an array of length 3",
+            ),
+            // An unknown key is named by the parser; no value holds the error.
+            (
+                "size = [1.0, 2.0]\nbogus = 1\n",
+                2,
+                "unknown field `bogus`, expected one of `size`, `rotation`, `points`, `table`",
+            ),
+        ] {
+            assert_eq!(error(text), (line, expected.to_string()), "{text}");
+        }
+    }
+}
