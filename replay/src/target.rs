@@ -7,7 +7,9 @@
 use std::sync::Arc;
 
 use rlpkg_mocap::Trajectory;
-use rlpkg_sim::{EpisodeSpec, Params, Placement, SceneConfig, SimError, ToolSample, ToolTrajectory};
+use rlpkg_sim::{
+    EpisodeSpec, Params, Placement, SceneConfig, SimError, ToolSample, ToolTrajectory,
+};
 
 use crate::ReplayError;
 

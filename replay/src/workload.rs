@@ -105,7 +105,8 @@ mod tests {
             let [low, high] = OBJECT_MASS_RANGE_KG;
             assert!((low..=high).contains(&spec.object_mass_kg), "env {env}");
         }
-        let masses = |specs: &[EpisodeSpec]| specs.iter().map(|s| s.object_mass_kg).collect::<Vec<_>>();
+        let masses =
+            |specs: &[EpisodeSpec]| specs.iter().map(|s| s.object_mass_kg).collect::<Vec<_>>();
         // Different environments draw different masses; the same seed gives the same batch, and
         // a smaller batch is a prefix of a larger one.
         let m = masses(&specs);

@@ -8,8 +8,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::{
-    CupLoad, EnvObservation, EpisodeSpec, HealthReason, Model, NoSealReason, Placement, Randomization,
-    SceneConfig, SealEventKind, Simulator, ToolCommand, ToolTrajectory,
+    CupLoad, EnvObservation, EpisodeSpec, HealthReason, Model, NoSealReason, Placement,
+    Randomization, SceneConfig, SealEventKind, Simulator, ToolCommand, ToolTrajectory,
 };
 
 /// The physical scene on a coarse grid, cups held `cup_height` above the package centre, the

@@ -42,8 +42,8 @@ use glam::{DQuat, DVec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{
-    CupLoad, EnvObservation, EnvSnapshot, EpisodeSpec, HealthEvent, Model, SceneConfig,
-    SealEvent, SealEventKind, Simulator, ToolCommand, ToolLimits, ToolTrajectory,
+    CupLoad, EnvObservation, EnvSnapshot, EpisodeSpec, HealthEvent, Model, SceneConfig, SealEvent,
+    SealEventKind, Simulator, ToolCommand, ToolLimits, ToolTrajectory,
 };
 
 pub use config::{

@@ -206,7 +206,12 @@ pub(crate) fn get3<const W: usize>(v: &V3<L<W>>, l: usize) -> [f32; 3] {
     [v.x.0[l], v.y.0[l], v.z.0[l]]
 }
 
-fn lane_params_set<const W: usize>(p: &mut LaneParams<W>, l: usize, model: &Model, spec: &EpisodeSpec) {
+fn lane_params_set<const W: usize>(
+    p: &mut LaneParams<W>,
+    l: usize,
+    model: &Model,
+    spec: &EpisodeSpec,
+) {
     let params = &spec.params;
     let c = &model.config.contact;
     p.tri[0].0[l] = params.k_tri_e;
@@ -246,7 +251,12 @@ fn lane_params_set<const W: usize>(p: &mut LaneParams<W>, l: usize, model: &Mode
 
 impl<const W: usize> Block<W> {
     /// A block holding `specs[envs[l]]` in lane l.
-    pub(crate) fn new(model: &Model, specs: &[EpisodeSpec], envs: [usize; W], real: [bool; W]) -> Self {
+    pub(crate) fn new(
+        model: &Model,
+        specs: &[EpisodeSpec],
+        envs: [usize; W],
+        real: [bool; W],
+    ) -> Self {
         let n = model.num_particles();
         let zero3 = V3::<L<W>>::zero();
         let zero = L::<W>::splat(0.0);
