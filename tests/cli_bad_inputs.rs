@@ -477,7 +477,7 @@ fn cases() -> Vec<Case> {
                 import_args()
             },
             expected: &[
-                "import.toml: line 47: key `conversion.tool_to_cup_m`",
+                "import.toml: line 50: key `conversion.tool_to_cup_m`",
                 "invalid length 4, expected an array of length 3",
             ],
         },
@@ -493,7 +493,7 @@ fn cases() -> Vec<Case> {
                 import_args()
             },
             expected: &[
-                "import.toml: line 59: key `package.size_m`",
+                "import.toml: line 62: key `package.size_m`",
                 "invalid length 1, expected an array of length 2",
             ],
         },
@@ -509,7 +509,7 @@ fn cases() -> Vec<Case> {
                 import_args()
             },
             expected: &[
-                "import.toml: line 69: key `robot.rotation_xyzw`",
+                "import.toml: line 72: key `robot.rotation_xyzw`",
                 "invalid length 3, expected an array of length 4",
             ],
         },
@@ -525,7 +525,7 @@ fn cases() -> Vec<Case> {
                 import_args()
             },
             expected: &[
-                "import.toml: line 70: key `robot.translation_m`",
+                "import.toml: line 73: key `robot.translation_m`",
                 "invalid length 2, expected an array of length 3",
             ],
         },
@@ -629,7 +629,7 @@ fn cases() -> Vec<Case> {
                 args(&["simulate", "HHHHH", "--seconds", "0.01"])
             },
             expected: &[
-                "HHHHH/meta.toml: line 8",
+                "HHHHH/meta.toml:8:",
                 "key `initial_suction_cup_position_m`",
                 "invalid length 4, expected an array of length 3",
             ],
@@ -649,7 +649,7 @@ fn cases() -> Vec<Case> {
                 args(&["simulate", "HHHHH", "--seconds", "0.01"])
             },
             expected: &[
-                "HHHHH/meta.toml: line 9",
+                "HHHHH/meta.toml:9:",
                 "key `initial_marker_positions_m`",
                 "invalid length 2, expected an array of length 3",
             ],
