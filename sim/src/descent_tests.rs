@@ -270,6 +270,49 @@ fn the_disc_stays_inside_through_a_fast_lift_and_a_60_degree_tilt() {
     assert!(sim.health_events().is_empty(), "{:?}", sim.health_events());
 }
 
+#[test]
+fn a_held_disc_is_turned_to_its_tilt_during_the_rest() {
+    let tilt = DQuat::from_rotation_x(20f64.to_radians());
+    for mut c in [descent([6, 7], 300.0, 10), explicit([6, 7])] {
+        c.disc.hold_orientation = true;
+        let model = Arc::new(Model::new(&c).unwrap());
+        let mut held = spec(&c, 0.01);
+        held.placement = held
+            .placement
+            .clone()
+            .holding_disc_at(held.placement.disc_position);
+        held.placement.disc_orientation = tilt.to_array().map(|c| c as f32);
+        // The same tilt without a hold is the initial orientation.
+        let mut started = held.clone();
+        started.placement.disc_hold = None;
+        let mut sim = Simulator::new(model, vec![held, started]).unwrap();
+        let tilt_of = |sim: &Simulator, env: usize| {
+            DQuat::from_array(sim.disc(env).orientation.map(f64::from))
+                .angle_between(DQuat::IDENTITY)
+        };
+        assert!(tilt_of(&sim, 0) < 1e-6);
+        assert!((tilt_of(&sim, 1) - 20f64.to_radians()).abs() < 1e-6);
+        let rest = c.cups.rest_time_s as f64;
+        // Halfway along the turn (a quarter of the rest): half the tilt, turning about x at the
+        // smoothstep's peak rate, 1.5 x 20 degrees per quarter rest.
+        sim.step(steps(&sim, 0.25 * rest));
+        assert!((tilt_of(&sim, 0) - 10f64.to_radians()).abs() < 1e-3);
+        let w = sim.disc(0).angular_velocity;
+        let peak = 1.5 * 20f64.to_radians() / (0.5 * rest);
+        assert!(
+            (w[0] as f64 - peak).abs() < 0.01 * peak,
+            "{w:?}, expected {peak} about x"
+        );
+        assert!(w[1].abs() < 1e-4 && w[2].abs() < 1e-4, "{w:?}");
+        // Held at the tilt until the end of the rest, then free.
+        sim.step(steps(&sim, 0.75 * rest) - 1);
+        assert!((tilt_of(&sim, 0) - 20f64.to_radians()).abs() < 1e-4);
+        assert_eq!(sim.disc(0).angular_velocity, [0.0; 3]);
+        sim.step(steps(&sim, 0.2));
+        assert!(sim.disc(0).angular_velocity.iter().any(|w| w.abs() > 1e-3));
+    }
+}
+
 fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EpisodeSpec> {
     let randomization = Randomization {
         object_mass_kg: Some([0.3, 0.7]),

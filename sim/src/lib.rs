@@ -65,7 +65,8 @@
 //!   the reference uses a cubic spline on a slightly stretched time base.
 //! * Health checks freeze an environment whose state is non-finite or exploding.
 //! * Optionally ([`Placement::disc_hold`], `disc.hold_at_recorded_start`) the disc is carried to
-//!   the recorded object's start during the rest and released at trajectory time 0. The reference
+//!   the recorded object's start during the rest and released at trajectory time 0, optionally
+//!   (`disc.hold_orientation`) turned to [`Placement::disc_orientation`] on the way. The reference
 //!   lets it slide freely during the rest; in its scene the disc then starts a replay 3-4 cm from
 //!   where the recording has it, and that offset persists through the whole trajectory.
 //!

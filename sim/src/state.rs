@@ -23,7 +23,8 @@ pub struct Placement {
     /// Where the disc is held during the rest period, if anywhere. The disc centre is moved
     /// kinematically from `disc_position` to this point over the first half of the rest, held
     /// there for the second half while the package settles around it, and released (at zero
-    /// velocity) at trajectory time 0; its rotation stays free throughout. `None`: the disc is
+    /// velocity) at trajectory time 0; its rotation is free throughout, or carried too
+    /// (`DiscConfig::hold_orientation`). `None`: the disc is
     /// free from the start (the reference's rule), and it slides to wherever the sagging package
     /// lets it rest.
     pub disc_hold: Option<[f32; 3]>,
@@ -31,7 +32,11 @@ pub struct Placement {
     /// particles, the disc and its hold point are turned by it before the cups attach.
     #[serde(default)]
     pub package_yaw_rad: f32,
-    /// Initial disc orientation (x, y, z, w); the identity keeps the disc axis along world y.
+    /// Disc orientation (x, y, z, w); the identity keeps the disc axis along world y. With a
+    /// `disc_hold` and `DiscConfig::hold_orientation`, the disc starts level and is turned to this
+    /// orientation over the first half of the rest (about the tilt's axis, on the centre's time
+    /// profile), held there for the second half and released with the centre. Otherwise it is
+    /// the initial orientation.
     #[serde(default = "identity_quat")]
     pub disc_orientation: [f32; 4],
 }

@@ -332,6 +332,21 @@ pub fn load_scene(config: &TransportConfig, source: &str) -> Result<SceneConfig,
                 .into(),
         });
     }
+    if config.randomization.package.object_tilt_deg > 0.0
+        && !(scene.disc.hold_at_recorded_start && scene.disc.hold_orientation)
+    {
+        return Err(EnvError::Config {
+            file: source.to_string(),
+            key: "transport.randomization.package.object_tilt_deg".into(),
+            value: config.randomization.package.object_tilt_deg.to_string(),
+            expected: format!(
+                "0 with the scene {:?}: a tilted object needs a scene that turns the disc to its \
+                 tilt during the rest ([disc] hold_at_recorded_start = true and hold_orientation \
+                 = true); started tilted, its rim cuts through the flat package's film",
+                config.scene
+            ),
+        });
+    }
     scene.package.grid = config.grid;
     let l = &config.limits;
     scene.tool_limits = ToolLimits {

@@ -88,6 +88,19 @@ fn info(t: &Transport, env: usize, name: &str) -> f32 {
 }
 
 #[test]
+fn a_tilted_object_needs_a_scene_that_turns_the_disc_during_the_rest() {
+    let text = test_table().replace("object_tilt_deg = 0.0", "object_tilt_deg = 20.0");
+    let error = Transport::new(config(&text), 1, "test.toml").err().unwrap();
+    let message = error.to_string();
+    assert!(
+        message.contains("test.toml")
+            && message.contains("object_tilt_deg")
+            && message.contains("hold_orientation"),
+        "{message}"
+    );
+}
+
+#[test]
 fn fixed_length_arrays_with_a_wrong_length_name_the_key() {
     let text = test_table();
     for (from, to, key, found) in [

@@ -228,7 +228,8 @@ impl<const W: usize> Block<W> {
             (self.disc_hold[l].is_some() && t1[l] <= k.rest_time) as u8 as f32
         }));
         let mut com = V3::select_lt(half, held, held_com, disc_target);
-        let mut q = q_target;
+        let (held_q, _, turning) = self.held_turn(&t1, k.rest_time, q_target, w_target);
+        let mut q = held_q;
 
         // 3. Contact data with the disc, frozen for the substep.
         let (dr, dh) = (model.disc.radius, model.disc.half_height);
@@ -448,9 +449,10 @@ impl<const W: usize> Block<W> {
             let moved = V3::select_lt(half, held, com, com + dc);
             com = keep(moved, com);
             let turned_q = turned(q, dtheta);
+            let free = active * (L::splat(1.0) - turning);
             q = Quat {
-                v: keep(turned_q.v, q.v),
-                w: L::select_lt(half, active, turned_q.w, q.w),
+                v: V3::select_lt(half, free, turned_q.v, q.v),
+                w: L::select_lt(half, free, turned_q.w, q.w),
             };
         }
 
@@ -466,6 +468,7 @@ impl<const W: usize> Block<W> {
         let (_, held_v) = self.held_disc(&t1, k.rest_time, com, (com - disc_start.com) * inv_h);
         let w1 = rotation_between(q, disc_start.q) * inv_h;
         let w1 = w1 * (L::splat(1.0) - L::splat(k.angular_damping) * h);
+        let (_, w1, _) = self.held_turn(&t1, k.rest_time, q, w1);
         self.disc.com = keep(com, disc_start.com);
         self.disc.v = keep(held_v, disc_start.v);
         self.disc.q = Quat {

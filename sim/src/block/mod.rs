@@ -164,6 +164,9 @@ pub(crate) struct Block<const W: usize> {
     disc_x0: V3<L<W>>,
     /// Per lane: where the disc is held during the rest (`None`: free), see `Placement::disc_hold`.
     disc_hold: [Option<[f32; 3]>; W],
+    /// Per lane: the orientation a held disc is turned to during the rest (`None`: the disc is
+    /// free), see `Placement::disc_orientation`.
+    disc_turn: [Option<[f32; 4]>; W],
     /// Per particle: frozen contact point on the disc (body frame) and normal (world).
     contact_point: Vec<V3<L<W>>>,
     contact_normal: Vec<V3<L<W>>>,
@@ -306,6 +309,7 @@ impl<const W: usize> Block<W> {
             },
             disc_x0: zero3,
             disc_hold: [None; W],
+            disc_turn: [None; W],
             contact_point: vec![zero3; n],
             contact_normal: vec![zero3; n],
             params: LaneParams {
@@ -459,12 +463,19 @@ impl<const W: usize> Block<W> {
         self.disc_hold[l] = pl.disc_hold.map(yaw);
         let q = pl.disc_orientation;
         let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
-        set3(
-            &mut self.disc.q.v,
-            l,
-            [q[0] / norm, q[1] / norm, q[2] / norm],
-        );
-        self.disc.q.w.0[l] = q[3] / norm;
+        let q = q.map(|c| c / norm);
+        // A held disc starts level and is turned to its orientation during the rest (see
+        // `DiscConfig::hold_orientation`).
+        self.disc_turn[l] = self.disc_hold[l]
+            .filter(|_| model.config.disc.hold_orientation)
+            .map(|_| q);
+        let q = if self.disc_turn[l].is_some() {
+            [0.0, 0.0, 0.0, 1.0]
+        } else {
+            q
+        };
+        set3(&mut self.disc.q.v, l, [q[0], q[1], q[2]]);
+        self.disc.q.w.0[l] = q[3];
         set3(&mut self.disc.v, l, [0.0; 3]);
         set3(&mut self.disc.w, l, [0.0; 3]);
         for i in 0..model.num_particles() {
@@ -569,19 +580,11 @@ impl<const W: usize> Block<W> {
         mut com: V3<L<W>>,
         mut v: V3<L<W>>,
     ) -> (V3<L<W>>, V3<L<W>>) {
-        let travel = 0.5 * rest_time;
         for l in 0..W {
             if t[l] > rest_time {
                 continue;
             }
-            let u = (t[l] / travel).min(1.0);
-            // Smoothstep: zero velocity at both ends of the path.
-            let shape = u * u * (3.0 - 2.0 * u);
-            let rate = if u < 1.0 {
-                6.0 * u * (1.0 - u) / travel
-            } else {
-                0.0
-            };
+            let (shape, rate) = hold_profile(t[l], rest_time);
             if let Some(target) = self.disc_hold[l] {
                 let start = get3(&self.disc_x0, l);
                 let at =
@@ -592,6 +595,59 @@ impl<const W: usize> Block<W> {
             }
         }
         (com, v)
+    }
+
+    /// The disc orientation and angular velocity at time `t` for lanes whose disc is held during
+    /// the rest: turned from level about the tilt's axis, on the centre's time profile.
+    /// Other lanes, and every lane after the rest, keep `q`, `w`; `turning` is 1 where it applied.
+    fn held_turn(
+        &self,
+        t: &[f64; W],
+        rest_time: f64,
+        mut q: Quat<L<W>>,
+        mut w: V3<L<W>>,
+    ) -> (Quat<L<W>>, V3<L<W>>, L<W>) {
+        let mut turning = L::<W>::splat(0.0);
+        for l in 0..W {
+            let Some(target) = self.disc_turn[l].filter(|_| t[l] <= rest_time) else {
+                continue;
+            };
+            let (shape, rate) = hold_profile(t[l], rest_time);
+            let sin_half = (target[0] as f64)
+                .hypot(target[1] as f64)
+                .hypot(target[2] as f64);
+            let angle = 2.0 * sin_half.atan2(target[3] as f64);
+            let axis = |c: usize| {
+                if sin_half > 0.0 {
+                    target[c] as f64 / sin_half
+                } else {
+                    0.0
+                }
+            };
+            let (s, c) = (0.5 * angle * shape).sin_cos();
+            set3(
+                &mut q.v,
+                l,
+                [
+                    (axis(0) * s) as f32,
+                    (axis(1) * s) as f32,
+                    (axis(2) * s) as f32,
+                ],
+            );
+            q.w.0[l] = c as f32;
+            let spin = angle * rate;
+            set3(
+                &mut w,
+                l,
+                [
+                    (axis(0) * spin) as f32,
+                    (axis(1) * spin) as f32,
+                    (axis(2) * spin) as f32,
+                ],
+            );
+            turning.0[l] = 1.0;
+        }
+        (q, w, turning)
     }
 
     /// Advances every active lane by `substeps` substeps of its own clock.
@@ -704,7 +760,9 @@ impl<const W: usize> Block<W> {
         }
         .normalize();
         let w1 = w1 * (L::splat(1.0) - L::splat(k.angular_damping) * dt);
-        let (com1, v1) = self.held_disc(&self.lane_times(k, k.dt64), k.rest_time, com1, v1);
+        let times = self.lane_times(k, k.dt64);
+        let (com1, v1) = self.held_disc(&times, k.rest_time, com1, v1);
+        let (q1, w1, _) = self.held_turn(&times, k.rest_time, q1, w1);
         self.disc = LaneDisc {
             com: keep(com1, disc.com),
             q: Quat {
@@ -870,4 +928,17 @@ unsafe fn advance_avx2<const W: usize>(
     parallel: bool,
 ) {
     block.advance(model, k, substeps, parallel);
+}
+
+/// Progress along a rest-period hold at time `t` (s) and its rate (1/s): a smoothstep over the
+/// first half of the rest (zero velocity at both ends), then still at 1.
+fn hold_profile(t: f64, rest_time: f64) -> (f64, f64) {
+    let travel = 0.5 * rest_time;
+    let u = (t / travel).min(1.0);
+    let rate = if u < 1.0 {
+        6.0 * u * (1.0 - u) / travel
+    } else {
+        0.0
+    };
+    (u * u * (3.0 - 2.0 * u), rate)
 }

@@ -26,6 +26,9 @@ pub(crate) struct LaneSnapshot {
     pub(crate) disc: DiscState,
     pub(crate) disc_x0: [f32; 3],
     pub(crate) disc_hold: Option<[f32; 3]>,
+    /// Absent from snapshots written before discs could be turned during the rest.
+    #[serde(default)]
+    pub(crate) disc_turn: Option<[f32; 4]>,
     pub(crate) tool: ToolDrive,
     pub(crate) clock: u64,
     pub(crate) active: bool,
@@ -72,6 +75,7 @@ impl<const W: usize> Block<W> {
             },
             disc_x0: get3(&self.disc_x0, l),
             disc_hold: self.disc_hold[l],
+            disc_turn: self.disc_turn[l],
             tool: self.tools[l].clone(),
             clock: self.clock[l],
             active: self.active.0[l] > 0.5,
@@ -119,6 +123,7 @@ impl<const W: usize> Block<W> {
             set3(&mut self.disc.w, l, d.angular_velocity);
             set3(&mut self.disc_x0, l, snap.disc_x0);
             self.disc_hold[l] = snap.disc_hold;
+            self.disc_turn[l] = snap.disc_turn;
             self.tools[l] = snap.tool.clone();
             self.clock[l] = snap.clock;
             self.active.0[l] = if snap.active { 1.0 } else { 0.0 };
