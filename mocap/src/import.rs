@@ -354,7 +354,8 @@ pub struct RetentionReport {
     pub reidentified_ids: usize,
     /// Median and largest distance (m) of a re-identified id to its predicted position.
     pub reid_distance_m: (f64, f64),
-    /// Candidate joins refused because the new id lies on the other film sheet.
+    /// Candidate joins refused because the new id lies on the other film sheet, or the sheet of
+    /// either cannot be told.
     pub refused_across_sheets: usize,
     /// Physical marker tracks kept.
     pub tracks_kept: usize,
@@ -417,7 +418,7 @@ impl fmt::Display for RetentionReport {
         )?;
         write!(
             f,
-            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} candidate joins refused as on the other sheet; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
+            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} candidate joins refused as on the other sheet or of unknown sheet; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
             self.input_ids,
             self.tracks_kept,
             self.reidentified_ids,
