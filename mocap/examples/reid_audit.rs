@@ -22,8 +22,9 @@
 
 use std::path::Path;
 
+use glam::{DQuat, DVec3};
 use rlpkg_mocap::clean::{self, fragment_sheets, reidentify, Series};
-use rlpkg_mocap::import::{rotate, ImportConfig};
+use rlpkg_mocap::import::ImportConfig;
 use rlpkg_mocap::motive::{read_take, MarkerKind};
 
 /// Two ids seen together closer than this, mostly along the tool's up axis, are the two sheets'
@@ -182,7 +183,7 @@ fn audit(path: &Path, config: &ImportConfig) -> Counts {
     let up: Vec<Option<[f64; 3]>> = take.rigid_bodies[0]
         .rotation
         .iter()
-        .map(|q| q.map(|q| rotate(q, [0.0, 1.0, 0.0])))
+        .map(|q| q.map(|q| DQuat::from_array(q).mul_vec3(DVec3::Y).to_array()))
         .collect();
     let lift_frame = (LIFT_S * rate).round() as usize;
     let labelled = sheets(&fragments, &up, lift_frame);
