@@ -79,7 +79,7 @@ pub struct ConversionConfig {
     pub markers: MarkerSource,
     /// Suction-cup centre in the tool's local frame (m), added to the tool pose of the first frame
     /// to get `initial_suction_cup_position_m`.
-    #[serde(deserialize_with = "crate::toml_input::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub tool_to_cup_m: [f64; 3],
     /// Keep only the frames from the start to the end of the tool's motion (plus margins).
     pub trim_to_motion: bool,
@@ -112,7 +112,7 @@ impl Default for ConversionConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct PackageConfig {
     /// Package footprint (short side, long side) in m.
-    #[serde(deserialize_with = "crate::toml_input::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub size_m: [f64; 2],
     /// Package (film) mass in kg.
     pub mass_kg: f64,
@@ -202,7 +202,7 @@ impl ImportConfig {
         let text = std::fs::read_to_string(path)
             .map_err(|e| config_err(format!("cannot read file: {e}")))?;
         let config: ImportConfig = toml::from_str(&text).map_err(|e| {
-            let (line, message) = crate::toml_input::error_at(&text, &e);
+            let (line, message) = rlpkg_toml_input::error_at(&text, &e);
             config_err(format!("line {line}: {message}"))
         })?;
         config.validate().map_err(config_err)?;
