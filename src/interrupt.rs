@@ -3,7 +3,8 @@
 //! long commands hold one while they work and write), the first signal only asks the command to
 //! stop: it looks at [`requested`] between two writes, returns [`Interrupted`], and its
 //! temporary files are removed as their owners are dropped, so it leaves no half-written output.
-//! A second signal ends the process at once.
+//! A second signal ends the process at once; the temporary files it leaves are never mistaken for
+//! output, and the next run of the command into the same folder removes them.
 
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 

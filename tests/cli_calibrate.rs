@@ -219,9 +219,32 @@ fn calibrates_and_resumes() {
     assert_eq!(scene.package.grid, [6, 7]);
     assert!((scene.cups.rest_time_s - 0.2).abs() < 1e-6);
 
+    // What a second Ctrl-C (an immediate exit) can leave: temporary copies of the output files
+    // and of the --write-params file. The rerun removes them and nothing else.
+    let leftovers = [
+        out_dir.join(".progress.csv.Ab12Cd"),
+        out_dir.join(".best.toml.x9Y8z7"),
+        out_dir.join(".calibrated.toml.QWERTY"),
+        dir.path().join(".calibrated.toml.a1b2c3"),
+    ];
+    let kept = [
+        out_dir.join("notes.txt"),
+        out_dir.join(".best.toml.orig"),
+        dir.path().join(".other.toml.a1b2c3"),
+    ];
+    for path in leftovers.iter().chain(&kept) {
+        std::fs::write(path, "half").unwrap();
+    }
+
     // Rerun: nothing left to do, same result. More iterations: only the new batch is evaluated.
     let out = run(&[]);
     assert!(out.status.success(), "{}", text(&out.stderr));
+    for path in &leftovers {
+        assert!(!path.exists(), "{} left behind", path.display());
+    }
+    for path in &kept {
+        assert!(path.exists(), "{} removed", path.display());
+    }
     assert_eq!(
         std::fs::read_to_string(out_dir.join("evaluations.csv")).unwrap(),
         log

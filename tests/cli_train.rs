@@ -133,11 +133,42 @@ fn train_eval_and_resume() {
         dir.path(),
     ));
     assert_eq!(eval_json(dir.path(), "runs/split")["update"], 2);
-    let out = ok(&rlpkg(
+    // What a second Ctrl-C (an immediate exit) can leave: an unfinished checkpoint folder and the
+    // temporary copies of `latest`, `config.toml` and `policy.onnx`. The resume removes them and
+    // nothing else.
+    let split = dir.path().join("runs/split");
+    let leftovers = [
+        "checkpoints/.partial-Ab3dE9",
+        "checkpoints/.latest.Xy12Zw",
+        ".config.toml.Qw34Er",
+        ".policy.onnx.Zx56Cv",
+    ];
+    std::fs::create_dir(split.join(leftovers[0])).unwrap();
+    std::fs::write(split.join(leftovers[0]).join("state.json"), "{").unwrap();
+    for file in &leftovers[1..] {
+        std::fs::write(split.join(file), "half").unwrap();
+    }
+    let kept = ["notes.txt", ".config.toml.orig", "checkpoints/.latest.bak"];
+    for file in kept {
+        std::fs::write(split.join(file), "mine").unwrap();
+    }
+    let resumed = rlpkg(
         &["train", "--resume", "runs/split", "--quiet", "--no-export"],
         dir.path(),
-    ));
+    );
+    let out = ok(&resumed);
     assert!(out.contains("4 / 4 updates"), "{out}");
+    for file in leftovers {
+        assert!(!split.join(file).exists(), "{file} left behind");
+    }
+    for file in kept {
+        assert!(split.join(file).exists(), "{file} removed");
+    }
+    let stderr = String::from_utf8_lossy(&resumed.stderr);
+    assert!(
+        stderr.contains("removed the leftover temporary") && stderr.contains(".partial-Ab3dE9"),
+        "{stderr}"
+    );
     assert_eq!(eval_json(dir.path(), "runs/split"), summary);
     // TensorBoard sees every update once, in order, from the one event file of the run.
     let events: Vec<_> = std::fs::read_dir(dir.path().join("runs/split"))

@@ -292,6 +292,45 @@ pub fn write_toml(path: &Path, value: &impl Serialize) -> Result<(), DriverError
     write_atomically(path, text.as_bytes())
 }
 
+/// The files a calibration writes into its output folder.
+pub const OUTPUT_FILES: [&str; 4] = [
+    "evaluations.csv",
+    "progress.csv",
+    "best.toml",
+    "calibrated.toml",
+];
+
+/// Removes from `dir` the temporary files that [`write_atomically`] leaves when the process is
+/// stopped at once (a second Ctrl-C, a kill) while writing one of `files`: `.`, the file name, `.`
+/// and six letters or digits (`atomic-write-file`'s names). Returns what it removed.
+pub fn clean_leftovers(dir: &Path, files: &[&str]) -> Result<Vec<PathBuf>, DriverError> {
+    let fail = |path: &Path, e: std::io::Error| DriverError::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(fail(dir, e)),
+    };
+    let mut removed = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(|e| fail(dir, e))?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let temporary = files.iter().any(|file| {
+            name.strip_prefix(&format!(".{file}.")).is_some_and(|tail| {
+                tail.len() == 6 && tail.bytes().all(|b| b.is_ascii_alphanumeric())
+            })
+        });
+        if temporary {
+            let path = entry.path();
+            std::fs::remove_file(&path).map_err(|e| fail(&path, e))?;
+            removed.push(path);
+        }
+    }
+    Ok(removed)
+}
+
 /// Writes a temporary file in the destination's folder, then renames it over the destination.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), DriverError> {
     let fail = |message: String| DriverError::Write {

@@ -10,9 +10,9 @@
 //! rigid body's orientation. The package's markers are stacked, top over bottom: measured on
 //! packages-v1, a marker's nearest neighbour is its partner on the other sheet 12-40 mm away
 //! (the disc inside holds the sheets apart), or else a marker of the same sheet 58 mm or more away.
-//! So two ids seen in one frame closer than [`PAIR_M`], mostly along the tool's up axis, are the two
-//! sheets' markers at one place, and the one farther along the up axis is on the top sheet (the
-//! cups hold the top sheet). An id that never has such a partner is on the top sheet if it is seen
+//! So two ids seen in one frame closer than [`PAIR_M`], mostly along the tool's up axis
+//! ([`ALONG_MIN`]), are the two sheets' markers at one place, and the one farther along the up axis
+//! is on the top sheet (the cups hold the top sheet). An id that never has such a partner is on the top sheet if it is seen
 //! before the lift (the bottom sheet lies on the conveyor, unseen), and of unknown sheet
 //! otherwise; joins and refusals that involve an unknown sheet are counted apart.
 //!
@@ -22,13 +22,18 @@
 
 use std::path::Path;
 
+use glam::{DQuat, DVec3};
 use rlpkg_mocap::clean::{self, fragment_sheets, reidentify, Series};
-use rlpkg_mocap::import::{rotate, ImportConfig};
+use rlpkg_mocap::import::ImportConfig;
 use rlpkg_mocap::motive::{read_take, MarkerKind};
 
 /// Two ids seen together closer than this, mostly along the tool's up axis, are the two sheets'
 /// markers at one place (m).
 const PAIR_M: f64 = 0.045;
+/// ... and "mostly along the up axis" means at least this share of their distance (within 45
+/// degrees of it): a partner lies straight below, while a reflection or a marker of the same sheet
+/// seen 40 mm away across a slope lies off to the side.
+const ALONG_MIN: f64 = 0.7;
 /// packages-v1: the tool starts lifting the package at 0.3 s.
 const LIFT_S: f64 = 0.3;
 /// A cleaned sample farther than this from every recorded sample of its frame is not a recorded
@@ -92,7 +97,7 @@ impl Counts {
 
     fn row(&self, name: &str) -> String {
         format!(
-            "| {name} | {} ({} paired, {} before lift, {} conflicting, {} unknown) | {} | {} | {} | {} | {} | {} | {} | {} | {:.3} | {} | {} ({} dropped as spurious) |",
+            "| {name} | {} ({} paired, {} before lift, {} conflicting, {} unknown) | {} | {} | {} | {} | {} | {} | {} | {} | {:.3} | {} | {} of {} ({} dropped as spurious) |",
             self.ids,
             self.ids_paired,
             self.ids_before_lift,
@@ -109,6 +114,7 @@ impl Counts {
             1e3 * (self.squared_error_m2 / self.observed_samples.max(1) as f64).sqrt(),
             self.far_samples,
             self.raw_unmatched,
+            self.raw_samples,
             self.spurious_dropped,
         )
     }
@@ -132,7 +138,7 @@ fn sheets(fragments: &[Series], up: &[Option<[f64; 3]>], lift_frame: usize) -> V
         for (a, &(i, p)) in seen.iter().enumerate() {
             for &(j, q) in &seen[a + 1..] {
                 let along: f64 = (0..3).map(|c| (p[c] - q[c]) * up[c]).sum();
-                if distance(p, q) < PAIR_M && along.abs() >= 0.5 * distance(p, q) {
+                if distance(p, q) < PAIR_M && along.abs() >= ALONG_MIN * distance(p, q) {
                     let (upper, lower) = if along > 0.0 { (i, j) } else { (j, i) };
                     votes[upper].0 += 1;
                     votes[lower].1 += 1;
@@ -177,7 +183,7 @@ fn audit(path: &Path, config: &ImportConfig) -> Counts {
     let up: Vec<Option<[f64; 3]>> = take.rigid_bodies[0]
         .rotation
         .iter()
-        .map(|q| q.map(|q| rotate(q, [0.0, 1.0, 0.0])))
+        .map(|q| q.map(|q| DQuat::from_array(q).mul_vec3(DVec3::Y).to_array()))
         .collect();
     let lift_frame = (LIFT_S * rate).round() as usize;
     let labelled = sheets(&fragments, &up, lift_frame);

@@ -277,7 +277,7 @@ impl Dataset {
 fn read_manifest(path: &Path) -> Result<Manifest, DataError> {
     let text = fs::read_to_string(path).map_err(io_error(path))?;
     toml::from_str(&text).map_err(|err| {
-        let (line, message) = crate::toml_input::error_at(&text, &err);
+        let (line, message) = rlpkg_toml_input::error_at(&text, &err);
         DataError::Malformed {
             path: path.to_path_buf(),
             line,
@@ -303,7 +303,7 @@ pub struct Meta {
     /// Trajectory id (the folder name).
     pub id: String,
     /// Short side and long side of the package (m).
-    #[serde(deserialize_with = "crate::toml_input::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub package_size_m: [f64; 2],
     /// Film mass of the package (kg).
     pub package_mass_kg: f64,
@@ -316,10 +316,10 @@ pub struct Meta {
     /// Package plus object (kg).
     pub total_mass_kg: f64,
     /// Centre of the suction cups at the start of the recording (m, world frame).
-    #[serde(deserialize_with = "crate::toml_input::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub initial_suction_cup_position_m: [f64; 3],
     /// Package markers seen in the first recorded frame (m, world frame), used to place the package.
-    #[serde(deserialize_with = "crate::toml_input::list")]
+    #[serde(deserialize_with = "rlpkg_toml_input::list")]
     pub initial_marker_positions_m: Vec<[f64; 3]>,
 }
 
@@ -593,7 +593,7 @@ fn read_markers(path: &Path, times: &[f64]) -> Result<MarkerFrames, DataError> {
 fn read_meta(path: &Path) -> Result<Meta, DataError> {
     let text = fs::read_to_string(path).map_err(io_error(path))?;
     let meta: Meta = toml::from_str(&text).map_err(|err| {
-        let (line, message) = crate::toml_input::error_at(&text, &err);
+        let (line, message) = rlpkg_toml_input::error_at(&text, &err);
         DataError::Malformed {
             path: path.to_path_buf(),
             line,

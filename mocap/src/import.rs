@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use glam::{DQuat, DVec3};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -78,7 +79,7 @@ pub struct ConversionConfig {
     pub markers: MarkerSource,
     /// Suction-cup centre in the tool's local frame (m), added to the tool pose of the first frame
     /// to get `initial_suction_cup_position_m`.
-    #[serde(deserialize_with = "crate::toml_input::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub tool_to_cup_m: [f64; 3],
     /// Keep only the frames from the start to the end of the tool's motion (plus margins).
     pub trim_to_motion: bool,
@@ -111,7 +112,7 @@ impl Default for ConversionConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct PackageConfig {
     /// Package footprint (short side, long side) in m.
-    #[serde(deserialize_with = "crate::toml_input::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub size_m: [f64; 2],
     /// Package (film) mass in kg.
     pub mass_kg: f64,
@@ -201,7 +202,7 @@ impl ImportConfig {
         let text = std::fs::read_to_string(path)
             .map_err(|e| config_err(format!("cannot read file: {e}")))?;
         let config: ImportConfig = toml::from_str(&text).map_err(|e| {
-            let (line, message) = crate::toml_input::error_at(&text, &e);
+            let (line, message) = rlpkg_toml_input::error_at(&text, &e);
             config_err(format!("line {line}: {message}"))
         })?;
         config.validate().map_err(config_err)?;
@@ -354,7 +355,8 @@ pub struct RetentionReport {
     pub reidentified_ids: usize,
     /// Median and largest distance (m) of a re-identified id to its predicted position.
     pub reid_distance_m: (f64, f64),
-    /// Candidate joins refused because the new id lies on the other film sheet.
+    /// Candidate joins refused because the new id lies on the other film sheet, or the sheet of
+    /// either cannot be told.
     pub refused_across_sheets: usize,
     /// Physical marker tracks kept.
     pub tracks_kept: usize,
@@ -417,7 +419,7 @@ impl fmt::Display for RetentionReport {
         )?;
         write!(
             f,
-            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} candidate joins refused as on the other sheet; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
+            "  marker ids {} -> {} tracks ({} re-identified, distance to prediction median {:.1} mm, max {:.1} mm; {} candidate joins refused as on the other sheet or of unknown sheet; {} short-lived dropped); markers per frame {}..{}; {} samples too short to filter",
             self.input_ids,
             self.tracks_kept,
             self.reidentified_ids,
@@ -538,7 +540,7 @@ pub fn convert_with_robot(
         if let Some(k) = body
             .rotation
             .iter()
-            .position(|q| q.is_some_and(|q| dot4(q, q) < 0.25))
+            .position(|q| q.is_some_and(|q| DQuat::from_array(q).length_squared() < 0.25))
         {
             return Err(take_err(format!(
                 "rigid body '{}' has a rotation quaternion of near-zero length at frame {k} (line {}); expected a unit quaternion",
@@ -639,7 +641,9 @@ pub fn convert_with_robot(
     if conversion.trim_to_motion {
         let velocity = gradient(&tool_position, &t_all[start..end]);
         let moving: Vec<usize> = (0..velocity.len())
-            .filter(|&k| norm(velocity[k]) > conversion.motion_speed_threshold_m_s)
+            .filter(|&k| {
+                DVec3::from_array(velocity[k]).length() > conversion.motion_speed_threshold_m_s
+            })
             .collect();
         if let (Some(&first), Some(&last)) = (moving.first(), moving.last()) {
             let margin = (conversion.motion_margin_s * rate).round() as usize;
@@ -734,7 +738,9 @@ pub fn convert_with_robot(
     let markers_per_frame = (*counts.iter().min().unwrap(), *counts.iter().max().unwrap());
 
     let object_total_mass_kg = settings.object_total_mass_kg;
-    let cup = rotate(tool_track.orientation[0], conversion.tool_to_cup_m);
+    let cup = DQuat::from_array(tool_track.orientation[0])
+        .mul_vec3(DVec3::from_array(conversion.tool_to_cup_m))
+        .to_array();
     let meta = Meta {
         id: id.to_string(),
         package_size_m: config.package.size_m,
@@ -847,23 +853,23 @@ fn clean_rigid_body(
     clean::fill_gaps(&mut position, max_gap, max_gap, window, None);
     // Quaternions q and -q are the same rotation: make the series continuous before touching it.
     let mut rotation = body.rotation.clone();
-    let mut previous: Option<[f64; 4]> = None;
+    let mut previous: Option<DQuat> = None;
     for q in rotation.iter_mut().flatten() {
-        if previous.is_some_and(|p| dot4(p, *q) < 0.0) {
+        if previous.is_some_and(|p| p.dot(DQuat::from_array(*q)) < 0.0) {
             *q = q.map(|v| -v);
         }
-        previous = Some(*q);
+        previous = Some(DQuat::from_array(*q));
     }
     let spans = clean::runs(&rotation);
     for pair in spans.windows(2) {
         let (a, b) = (pair[0].1 - 1, pair[1].0);
         if b - a - 1 <= max_gap {
-            let (qa, qb) = (rotation[a].unwrap(), rotation[b].unwrap());
+            let qa = DQuat::from_array(rotation[a].unwrap());
+            let qb = DQuat::from_array(rotation[b].unwrap());
             for (offset, slot) in rotation[a + 1..b].iter_mut().enumerate() {
+                // Normalised linear interpolation (the series is continuous, so no sign flip).
                 let s = (offset + 1) as f64 / (b - a) as f64;
-                *slot = Some(normalize4(std::array::from_fn(|i| {
-                    qa[i] + s * (qb[i] - qa[i])
-                })));
+                *slot = Some(qa.lerp(qb, s).to_array());
             }
         }
     }
@@ -883,7 +889,7 @@ fn clean_rigid_body(
         }
     }
     for q in rotation.iter_mut().flatten() {
-        *q = normalize4(*q);
+        *q = DQuat::from_array(*q).normalize().to_array();
     }
     Pose { position, rotation }
 }
@@ -908,42 +914,11 @@ pub fn angular_velocity(q: &[[f64; 4]], t: &[f64]) -> Vec<[f64; 3]> {
     q.iter()
         .zip(&dq)
         .map(|(q, dq)| {
-            let product = multiply(*dq, [-q[0], -q[1], -q[2], q[3]]);
-            [2.0 * product[0], 2.0 * product[1], 2.0 * product[2]]
+            // The derivative is not a unit quaternion: `*` is the plain Hamilton product.
+            let product = DQuat::from_array(*dq) * DQuat::from_array(*q).conjugate();
+            [2.0 * product.x, 2.0 * product.y, 2.0 * product.z]
         })
         .collect()
-}
-
-/// Hamilton product of quaternions stored as (x, y, z, w).
-fn multiply(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
-    [
-        a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1],
-        a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0],
-        a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3],
-        a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2],
-    ]
-}
-
-/// Rotates `v` by the unit quaternion `q` (x, y, z, w).
-pub fn rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
-    let r = multiply(
-        multiply(q, [v[0], v[1], v[2], 0.0]),
-        [-q[0], -q[1], -q[2], q[3]],
-    );
-    [r[0], r[1], r[2]]
-}
-
-fn dot4(a: [f64; 4], b: [f64; 4]) -> f64 {
-    a.iter().zip(&b).map(|(x, y)| x * y).sum()
-}
-
-fn normalize4(q: [f64; 4]) -> [f64; 4] {
-    let n = dot4(q, q).sqrt();
-    q.map(|v| v / n)
-}
-
-fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
 
 #[cfg(test)]
@@ -1323,16 +1298,10 @@ mod tests {
         for w in angular_velocity(&q, &t) {
             assert!(dist(w, [0.0, 0.5, 0.0]) < 1e-4, "{w:?}");
         }
-        let v = rotate(
-            [
-                0.0,
-                (std::f64::consts::PI / 4.0).sin(),
-                0.0,
-                (std::f64::consts::PI / 4.0).cos(),
-            ],
-            [1.0, 0.0, 0.0],
-        );
-        assert!(dist(v, [0.0, 0.0, -1.0]) < 1e-12, "{v:?}");
+        // Motive's (x, y, z, w) order is glam's: a quarter turn about Y takes X to -Z.
+        let quarter = (std::f64::consts::PI / 4.0).sin_cos();
+        let v = DQuat::from_array([0.0, quarter.0, 0.0, quarter.1]).mul_vec3(DVec3::X);
+        assert!(dist(v.to_array(), [0.0, 0.0, -1.0]) < 1e-12, "{v:?}");
     }
 
     fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {

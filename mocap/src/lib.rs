@@ -6,7 +6,6 @@ pub mod dataset;
 pub mod import;
 pub mod motive;
 pub mod robot;
-mod toml_input;
 
 pub use dataset::{
     load_trajectory, DataError, Dataset, ManifestEntry, MarkerFrames, Meta, ObjectTrack, Split,

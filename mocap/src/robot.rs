@@ -186,10 +186,10 @@ impl RigidTransform {
 pub struct RobotConfig {
     /// Rotation from robot to mocap axes (x, y, z, w); with `translation_m`, or neither to estimate
     /// the transform from the Motive tool rigid body.
-    #[serde(deserialize_with = "crate::toml_input::option")]
+    #[serde(deserialize_with = "rlpkg_toml_input::option")]
     pub rotation_xyzw: Option<[f64; 4]>,
     /// Translation (m): `p_mocap = rotation * p_robot + translation_m`.
-    #[serde(deserialize_with = "crate::toml_input::option")]
+    #[serde(deserialize_with = "rlpkg_toml_input::option")]
     pub translation_m: Option<[f64; 3]>,
     /// Largest accepted RMS distance (m) between the transformed command and the Motive tool
     /// rigid body over the imported frames (catches a wrong file pair or a wrong transform).

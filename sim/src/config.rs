@@ -117,10 +117,10 @@ pub struct PackageConfig {
     /// Vertices per layer: [along the short side (world z), along the long side (world x)].
     /// Table 2 sizes are [11, 13], [16, 19], [21, 25], [26, 31]; the reference "marker grid 6x7
     /// with p particles in between" is [6 + 5p, 7 + 6p].
-    #[serde(deserialize_with = "crate::exact::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub grid: [usize; 2],
     /// Package size [short side, long side] in m.
-    #[serde(deserialize_with = "crate::exact::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub size_m: [f32; 2],
     /// Distance between the two layers at build time (m).
     pub thickness_m: f32,

@@ -85,7 +85,6 @@ mod block;
 pub mod config;
 pub mod embed;
 pub mod error;
-pub mod exact;
 pub mod forces;
 pub mod implicit;
 pub mod math;

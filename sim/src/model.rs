@@ -6,6 +6,8 @@
 
 use std::collections::HashMap;
 
+use glam::DVec3;
+
 use crate::config::{InertiaModel, SceneConfig};
 use crate::error::SimError;
 use crate::forces::TriangleRest;
@@ -147,31 +149,17 @@ impl VertexAdjacency {
     }
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
 /// Rest dihedral angle as Warp's builder computes it (f64, clamped).
 fn rest_dihedral(x: [[f64; 3]; 4]) -> f64 {
-    let n1 = cross(sub(x[2], x[0]), sub(x[3], x[0]));
-    let n2 = cross(sub(x[3], x[1]), sub(x[2], x[1]));
-    let (l1, l2) = (dot(n1, n1).sqrt(), dot(n2, n2).sqrt());
+    let [x0, x1, x2, x3] = x.map(DVec3::from_array);
+    let n1 = (x2 - x0).cross(x3 - x0);
+    let n2 = (x3 - x1).cross(x2 - x1);
+    let (l1, l2) = (n1.length(), n2.length());
     if l1 < 1e-12 || l2 < 1e-12 {
         return 0.0;
     }
-    let cos = (dot(n1, n2) / (l1 * l2)).clamp(-1.0, 1.0);
-    let e = sub(x[3], x[2]);
-    let s = dot(cross(n2, n1), e);
+    let cos = (n1.dot(n2) / (l1 * l2)).clamp(-1.0, 1.0);
+    let s = n2.cross(n1).dot(x3 - x2);
     cos.acos() * if s < 0.0 { -1.0 } else { 1.0 }
 }
 

@@ -18,10 +18,10 @@ use crate::state::EpisodeSpec;
 #[serde(deny_unknown_fields)]
 pub struct Randomization {
     /// Object mass (kg); `None` keeps the spec's.
-    #[serde(default, deserialize_with = "crate::exact::option")]
+    #[serde(default, deserialize_with = "rlpkg_toml_input::option")]
     pub object_mass_kg: Option<[f32; 2]>,
     /// Simulated disc kg per object kg; `None` keeps the spec's.
-    #[serde(default, deserialize_with = "crate::exact::option")]
+    #[serde(default, deserialize_with = "rlpkg_toml_input::option")]
     pub disc_mass_scale: Option<[f32; 2]>,
     /// Largest horizontal offset of the object from its nominal place in the package (m),
     /// uniform over a disc of this radius.
@@ -31,10 +31,10 @@ pub struct Randomization {
     #[serde(default)]
     pub object_tilt_deg: f32,
     /// Yaw of the package under the tool (degrees).
-    #[serde(default, deserialize_with = "crate::exact::array")]
+    #[serde(default, deserialize_with = "rlpkg_toml_input::array")]
     pub package_yaw_deg: [f32; 2],
     /// Scale per material parameter, by the paper's name (`k_tri_e`, ...), drawn log-uniformly.
-    #[serde(default, deserialize_with = "crate::exact::map")]
+    #[serde(default, deserialize_with = "rlpkg_toml_input::map")]
     pub param_scale: BTreeMap<String, [f32; 2]>,
 }
 

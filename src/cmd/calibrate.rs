@@ -114,13 +114,21 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     }));
 
     let out_dir = &config.out_dir;
+    // What a calibration stopped at once (a second signal, a kill) left behind.
+    let mut leftovers =
+        driver::clean_leftovers(out_dir, &driver::OUTPUT_FILES).map_err(driver_error)?;
+    if let Some(path) = &args.write_params {
+        let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+        if let Some(name) = path.file_name().and_then(|name| name.to_str()) {
+            let dir = dir.unwrap_or(Path::new("."));
+            leftovers.extend(driver::clean_leftovers(dir, &[name]).map_err(driver_error)?);
+        }
+    }
+    for path in leftovers {
+        eprintln!("removed the leftover temporary {}", path.display());
+    }
     if args.fresh {
-        for file in [
-            "evaluations.csv",
-            "progress.csv",
-            "best.toml",
-            "calibrated.toml",
-        ] {
+        for file in driver::OUTPUT_FILES {
             let path = out_dir.join(file);
             if path.exists() {
                 std::fs::remove_file(&path).map_err(|err| {

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::Args;
 use rlpkg_agents::config::check_memory;
+use rlpkg_agents::runners::{clean_leftovers, POLICY_FILE};
 use rlpkg_agents::{load_policy_graph, AgentError, TrainConfig, Trainer};
 
 use crate::cmd::export::{export_policy, ExportOptions};
@@ -79,6 +80,11 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             ))
         }
     };
+    // What a run stopped at once (a second signal, a kill) left behind; a new run's folder may
+    // hold the leftovers of one stopped before its configuration was written.
+    for path in clean_leftovers(&run_dir).map_err(wrap)? {
+        eprintln!("removed the leftover temporary {}", path.display());
+    }
     let stop_after = args.stop_after.map(|s| s as usize);
     // A signal ends training after the current update, which is checkpointed: `--resume`
     // continues from it.
@@ -113,7 +119,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         let mut graph = load_policy_graph(&run_dir).map_err(wrap)?;
         // Like `rlpkg export` without --with-value: the actor (and normaliser) only.
         graph.critic = None;
-        let out = run_dir.join("policy.onnx");
+        let out = run_dir.join(POLICY_FILE);
         let options = ExportOptions {
             verify_rows: 1000,
             check_data: false,

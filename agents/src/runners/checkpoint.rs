@@ -32,6 +32,10 @@ const OPTIMIZER: &str = "optimizer.bpk";
 const STATE: &str = "state.json";
 /// Complete checkpoints kept in a run folder.
 const KEEP: usize = 2;
+/// Name prefix of the folder a checkpoint is written into before it is renamed into place.
+const PARTIAL_PREFIX: &str = ".partial-";
+/// The policy a finished run exports beside its checkpoints.
+pub const POLICY_FILE: &str = "policy.onnx";
 
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -169,6 +173,49 @@ fn update_number(name: &str) -> Option<usize> {
     digits.parse().ok()
 }
 
+/// Whether `name` is a temporary file of `file` as `atomic-write-file` names them: `.`, the file
+/// name, `.` and six letters or digits.
+fn is_temporary_of(name: &str, file: &str) -> bool {
+    name.strip_prefix('.')
+        .and_then(|rest| rest.strip_prefix(file))
+        .and_then(|rest| rest.strip_prefix('.'))
+        .is_some_and(|tail| tail.len() == 6 && tail.bytes().all(|b| b.is_ascii_alphanumeric()))
+}
+
+/// Removes what a run stopped at once (a second Ctrl-C, a kill) left in `run_dir`: the temporary
+/// copies of `config.toml`, `policy.onnx` and `checkpoints/latest`, and unfinished checkpoint
+/// folders. Nothing in use is touched: these are only ever renamed into place or dropped. Returns
+/// what it removed.
+pub fn clean_leftovers(run_dir: &Path) -> Result<Vec<PathBuf>, AgentError> {
+    let mut removed = Vec::new();
+    let checkpoints = run_dir.join(CHECKPOINTS);
+    for (dir, files) in [
+        (run_dir, &[CONFIG_FILE, POLICY_FILE][..]),
+        (checkpoints.as_path(), &[LATEST][..]),
+    ] {
+        let entries = match std::fs::read_dir(dir) {
+            Ok(entries) => entries,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(AgentError::io(dir, e)),
+        };
+        for entry in entries {
+            let entry = entry.map_err(|e| AgentError::io(dir, e))?;
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let path = entry.path();
+            let partial = dir == checkpoints && name.starts_with(PARTIAL_PREFIX);
+            if partial && path.is_dir() {
+                std::fs::remove_dir_all(&path).map_err(|e| AgentError::io(&path, e))?;
+            } else if files.iter().any(|file| is_temporary_of(&name, file)) {
+                std::fs::remove_file(&path).map_err(|e| AgentError::io(&path, e))?;
+            } else {
+                continue;
+            }
+            removed.push(path);
+        }
+    }
+    Ok(removed)
+}
+
 /// Writes `bytes` to `path` through a temporary file in the same folder.
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), AgentError> {
     let mut file =
@@ -196,7 +243,7 @@ impl Trainer {
         let dir = run_dir.join(CHECKPOINTS);
         std::fs::create_dir_all(&dir).map_err(|e| AgentError::io(&dir, e))?;
         let tmp = tempfile::Builder::new()
-            .prefix(".partial-")
+            .prefix(PARTIAL_PREFIX)
             .tempdir_in(&dir)
             .map_err(|e| AgentError::io(&dir, e))?;
         let model_path = tmp.path().join(MODEL);

@@ -5,7 +5,7 @@ mod on_policy;
 mod policy;
 mod tensorboard;
 
-pub use checkpoint::{latest_checkpoint, CONFIG_FILE};
+pub use checkpoint::{clean_leftovers, latest_checkpoint, CONFIG_FILE, POLICY_FILE};
 pub use on_policy::{TrainSummary, Trainer, UpdateLog, UpdateTiming};
 pub use policy::{
     evaluate_run, evaluation_memory_bytes, load_policy_graph, EvalSummary, TrainedPolicy,

@@ -17,7 +17,7 @@ pub struct TransportConfig {
     /// and the seal model on.
     pub scene: String,
     /// Package grid `[rows, columns]` (overrides the scene's; coarse grids train faster).
-    #[serde(deserialize_with = "rlpkg_sim::exact::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub grid: [usize; 2],
     /// Folder of the recordings (`data/deformable-sim-real`).
     pub recordings: String,
@@ -123,7 +123,7 @@ pub struct RewardWeights {
 #[serde(deny_unknown_fields)]
 pub struct TransportRandomization {
     /// Tilt of the tool at the place pose (degrees), uniform.
-    #[serde(deserialize_with = "rlpkg_sim::exact::array")]
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub target_tilt_deg: [f64; 2],
     /// Largest offset of the place position (m), uniform in a ball.
     pub goal_jitter_m: f64,

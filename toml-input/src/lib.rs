@@ -1,6 +1,16 @@
-//! Reading the TOML files of an import (`configs/import.toml`, `manifest.toml`, `meta.toml`):
-//! fixed-length arrays that must have exactly their length (serde fills `[T; N]` from the first N
-//! values of a longer array and drops the rest), and parse errors that name the line and the key.
+//! Reading the TOML files of rlpkg (scene presets, configurations, `configs/import.toml`,
+//! `manifest.toml`, `meta.toml`): fixed-length arrays that must have exactly their length, and
+//! parse errors that name the line and the key. Shared by the simulator and the motion-capture
+//! crate, which do not depend on each other.
+//!
+//! serde fills `[T; N]` from the first N values of a longer TOML array and drops the rest, so
+//! `grid = [16, 19, 3]` would silently run as 16 x 19. Read such fields through
+//! `#[serde(deserialize_with = "rlpkg_toml_input::array")]` (or `option`, `list`, `map`); the
+//! parser's message then says `invalid length 3, expected an array of length 2` at the key's line.
+
+#![warn(missing_docs)]
+
+use std::collections::BTreeMap;
 
 use serde::{Deserialize, Deserializer};
 
@@ -17,8 +27,8 @@ impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exact<T, N> 
     }
 }
 
-/// `[T; N]` with exactly `N` values (`#[serde(deserialize_with = "...")]`).
-pub(crate) fn array<'de, D, T, const N: usize>(deserializer: D) -> Result<[T; N], D::Error>
+/// `[T; N]` with exactly `N` values.
+pub fn array<'de, D, T, const N: usize>(deserializer: D) -> Result<[T; N], D::Error>
 where
     D: Deserializer<'de>,
     T: Deserialize<'de>,
@@ -27,7 +37,7 @@ where
 }
 
 /// An optional `[T; N]` with exactly `N` values (pair with `#[serde(default)]`).
-pub(crate) fn option<'de, D, T, const N: usize>(deserializer: D) -> Result<Option<[T; N]>, D::Error>
+pub fn option<'de, D, T, const N: usize>(deserializer: D) -> Result<Option<[T; N]>, D::Error>
 where
     D: Deserializer<'de>,
     T: Deserialize<'de>,
@@ -36,7 +46,7 @@ where
 }
 
 /// A list of `[T; N]` with exactly `N` values each.
-pub(crate) fn list<'de, D, T, const N: usize>(deserializer: D) -> Result<Vec<[T; N]>, D::Error>
+pub fn list<'de, D, T, const N: usize>(deserializer: D) -> Result<Vec<[T; N]>, D::Error>
 where
     D: Deserializer<'de>,
     T: Deserialize<'de>,
@@ -45,9 +55,19 @@ where
         .map(|list| list.into_iter().map(|e| e.0).collect())
 }
 
+/// A table of `[T; N]` with exactly `N` values each.
+pub fn map<'de, D, T, const N: usize>(deserializer: D) -> Result<BTreeMap<String, [T; N]>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    BTreeMap::<String, Exact<T, N>>::deserialize(deserializer)
+        .map(|table| table.into_iter().map(|(k, v)| (k, v.0)).collect())
+}
+
 /// The 1-based line of a parse error of `text` and its message, which names the key when the
 /// error points into a value: `` key `package.size_m`: invalid length 1, ... ``.
-pub(crate) fn error_at(text: &str, err: &toml::de::Error) -> (usize, String) {
+pub fn error_at(text: &str, err: &toml::de::Error) -> (usize, String) {
     let Some(at) = err.span().map(|span| span.start.min(text.len())) else {
         return (1, err.message().to_string());
     };
@@ -106,7 +126,6 @@ mod tests {
 
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]
-    #[allow(dead_code)] // only read through Debug
     struct Fixed {
         #[serde(deserialize_with = "array")]
         size: [f64; 2],
@@ -114,15 +133,39 @@ mod tests {
         rotation: Option<[f64; 4]>,
         #[serde(default, deserialize_with = "list")]
         points: Vec<[f64; 3]>,
+        #[serde(default, deserialize_with = "map")]
+        scales: BTreeMap<String, [f32; 2]>,
         #[serde(default)]
         table: Option<Inner>,
     }
 
     #[derive(Debug, Deserialize)]
-    #[allow(dead_code)]
     struct Inner {
         #[serde(deserialize_with = "array")]
         offset: [f64; 3],
+    }
+
+    #[test]
+    fn exactly_n_values_are_read() {
+        let text = "size = [1.0, 2.0]\nrotation = [0.0, 0.0, 0.0, 1.0]\npoints = [[1.0, 2.0, 3.0]]\nscales = { a = [1.0, 2.0] }\n[table]\noffset = [0.0, 0.5, 0.0]\n";
+        let fixed: Fixed = toml::from_str(text).unwrap();
+        assert_eq!(fixed.size, [1.0, 2.0]);
+        assert_eq!(fixed.rotation, Some([0.0, 0.0, 0.0, 1.0]));
+        assert_eq!(fixed.points, [[1.0, 2.0, 3.0]]);
+        assert_eq!(fixed.scales["a"], [1.0, 2.0]);
+        assert_eq!(fixed.table.unwrap().offset, [0.0, 0.5, 0.0]);
+        let bare: Fixed = toml::from_str("size = [1.0, 2.0]").unwrap();
+        assert_eq!(
+            (bare.rotation, bare.points.len(), bare.scales.len()),
+            (None, 0, 0)
+        );
+        let err = toml::from_str::<Fixed>("size = [1.0, 2.0]\nscales = { a = [1.0] }")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("scales = { a = [1.0] }") && err.contains("expected an array of length 2"),
+            "{err}"
+        );
     }
 
     fn error(text: &str) -> (usize, String) {
@@ -132,8 +175,6 @@ mod tests {
 
     #[test]
     fn wrong_lengths_name_line_key_and_expected_length() {
-        let good = "size = [1.0, 2.0]\nrotation = [0.0, 0.0, 0.0, 1.0]\npoints = [[1.0, 2.0, 3.0]]\n[table]\noffset = [0.0, 0.0, 0.0]\n";
-        assert!(toml::from_str::<Fixed>(good).is_ok());
         for (text, line, expected) in [
             (
                 "size = [1.0, 2.0, 3.0]\n",
@@ -165,7 +206,7 @@ mod tests {
             (
                 "size = [1.0, 2.0]\nbogus = 1\n",
                 2,
-                "unknown field `bogus`, expected one of `size`, `rotation`, `points`, `table`",
+                "unknown field `bogus`, expected one of `size`, `rotation`, `points`, `scales`, `table`",
             ),
         ] {
             assert_eq!(error(text), (line, expected.to_string()), "{text}");
