@@ -64,6 +64,9 @@ pub struct SimSettings {
     /// Hold the disc at each recording's start during the rest (`disc.hold_at_recorded_start` of
     /// the scene); the preset's setting when absent.
     pub hold_disc: Option<bool>,
+    /// Turn the held disc to its recorded orientation during the rest hold (`disc.hold_orientation`
+    /// of the scene); the preset's setting when absent.
+    pub hold_orientation: Option<bool>,
 }
 
 fn default_between() -> usize {
@@ -272,6 +275,7 @@ preset = "configs/reference.toml"
 between = 1
 max_seconds = 2.0
 hold_disc = true
+hold_orientation = true
 
 [optimiser]
 iterations = 10
@@ -312,6 +316,7 @@ upper = 2.0
         assert_eq!(c.loss.package, 0.5);
         assert_eq!(c.sim.max_seconds, Some(2.0));
         assert_eq!(c.sim.hold_disc, Some(true));
+        assert_eq!(c.sim.hold_orientation, Some(true));
         assert_eq!(c.bo_settings().seed, 3);
     }
 
@@ -343,6 +348,15 @@ upper = 2.0
             shipped.package.grid,
             [6 + 5 * first.sim.between, 7 + 6 * first.sim.between]
         );
+        // The SI scene's second stage refines the first with the disc's orientation held.
+        let si = CalibrateConfig::load(&configs.join("calibrate-si.toml")).unwrap();
+        let si_refine = CalibrateConfig::load(&configs.join("calibrate-si-refine.toml")).unwrap();
+        assert_eq!(
+            Path::new(&si_refine.sim.preset),
+            si.out_dir.join("calibrated.toml")
+        );
+        assert_eq!(si.space().names(), si_refine.space().names());
+        assert_eq!(si_refine.sim.hold_orientation, Some(true));
     }
 
     #[test]

@@ -78,6 +78,9 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     if let Some(hold) = config.sim.hold_disc {
         scene.disc.hold_at_recorded_start = hold;
     }
+    if let Some(hold) = config.sim.hold_orientation {
+        scene.disc.hold_orientation = hold;
+    }
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let space = config.space();
 
