@@ -277,10 +277,7 @@ fn a_held_disc_is_turned_to_its_tilt_during_the_rest() {
         c.disc.hold_orientation = true;
         let model = Arc::new(Model::new(&c).unwrap());
         let mut held = spec(&c, 0.01);
-        held.placement = held
-            .placement
-            .clone()
-            .holding_disc_at(held.placement.disc_position);
+        held.placement = held.placement.holding_disc_at(held.placement.disc_position);
         held.placement.disc_orientation = tilt.to_array().map(|c| c as f32);
         // The same tilt without a hold is the initial orientation.
         let mut started = held.clone();

@@ -773,31 +773,48 @@ impl<const W: usize> Block<W> {
             w: keep(w1, disc.w),
         };
 
-        // 8. Integrate particles (Warp `integrate_particles`).
+        // 8. Integrate particles (Warp `integrate_particles`), one loop per kind of particle:
+        // with the branch inside one loop, LLVM if-converted it into 128-bit pieces and
+        // per-lane selects (30 % slower).
         let max_speed = L::<W>::splat(k.max_particle_speed);
-        let kinematic = k.drive == DriveMode::Kinematic;
-        for i in 0..n {
-            let is_cup = i >= cup_start;
-            let vi = self.v[i];
-            let v1 = if is_cup && kinematic {
-                vi
-            } else {
-                let inv_m = if is_cup {
-                    p.inv_mass_cup
-                } else {
-                    p.inv_mass_package
-                };
-                let v1 = vi + ((self.f[i] + self.f2[i]) * inv_m + gravity) * dt;
-                let speed = v1.length();
-                V3::select_lt(max_speed, speed, v1 * (max_speed / speed), v1)
-            };
-            let x1 = self.x[i] + v1 * dt;
-            self.v[i] = keep(v1, vi);
-            self.x[i] = keep(x1, self.x[i]);
+        let package = 0..cup_start;
+        self.integrate_free(package, p.inv_mass_package, gravity, dt, max_speed, active);
+        if k.drive == DriveMode::Kinematic {
+            // The cups move at the velocity set in step 1.
+            for i in cup_start..n {
+                self.x[i] = keep(self.x[i] + self.v[i] * dt, self.x[i]);
+            }
+        } else {
+            self.integrate_free(cup_start..n, p.inv_mass_cup, gravity, dt, max_speed, active);
         }
 
         // 9. Seal loads and failures (take effect from the next substep).
         self.update_seals(model, k, tq, &t);
+    }
+
+    /// Advances particles `range` of the active lanes under their forces (inverse mass
+    /// `inv_m`), the speed clamped to `max_speed`.
+    #[inline(always)]
+    fn integrate_free(
+        &mut self,
+        range: std::ops::Range<usize>,
+        inv_m: L<W>,
+        gravity: V3<L<W>>,
+        dt: L<W>,
+        max_speed: L<W>,
+        active: L<W>,
+    ) {
+        let half = L::<W>::splat(0.5);
+        for i in range {
+            let v1 = self.v[i] + ((self.f[i] + self.f2[i]) * inv_m + gravity) * dt;
+            let speed = v1.length();
+            let v1 = V3::select_lt(max_speed, speed, v1 * (max_speed / speed), v1);
+            self.v[i] = V3::select_lt(half, active, v1, self.v[i]);
+            self.x[i] = V3::select_lt(half, active, self.x[i] + v1 * dt, self.x[i]);
+            // Keeps LLVM from vectorising this loop across particles (gathering one lane of
+            // eight particles per vector: 15-25 % slower than one particle's W lanes at a time).
+            std::sync::atomic::compiler_fence(std::sync::atomic::Ordering::SeqCst);
+        }
     }
 }
 
