@@ -227,7 +227,7 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
             &format!("recordings = \"{root}/data/"),
         )
         .replace("num_envs = 16", "num_envs = 2")
-        .replace("total_steps = 983040", "total_steps = 16")
+        .replace("total_steps = 819200", "total_steps = 16")
         .replace("rollout_steps = 64", "rollout_steps = 8")
         .replace("minibatches = 4", "minibatches = 2")
         .replace("time_limit_s = 12.0", "time_limit_s = 2.0")

@@ -497,7 +497,7 @@ fn asymmetric_resume_continues_exactly_like_an_uninterrupted_run() {
 fn tiny_transport_text() -> String {
     crate::config::tests::transport_config_text()
         .replace("num_envs = 16", "num_envs = 2")
-        .replace("total_steps = 983040", "total_steps = 48")
+        .replace("total_steps = 819200", "total_steps = 48")
         .replace("checkpoint_every = 80", "checkpoint_every = 1")
         .replace("rollout_steps = 64", "rollout_steps = 8")
         .replace("minibatches = 4", "minibatches = 2")
@@ -511,7 +511,7 @@ fn short_transport_training_raises_the_return() {
     // mean return of the last finished episodes climbs well above the early policy's (the full
     // run logged -14.7 after 10 updates and 4.8 after 100).
     let text = crate::config::tests::transport_config_text()
-        .replace("total_steps = 983040", "total_steps = 102400");
+        .replace("total_steps = 819200", "total_steps = 102400");
     assert!(text.contains("total_steps = 102400"));
     let mut t = trainer(&text);
     for _ in 0..10 {
