@@ -357,6 +357,21 @@ upper = 2.0
         );
         assert_eq!(si.space().names(), si_refine.space().names());
         assert_eq!(si_refine.sim.hold_orientation, Some(true));
+        // The stiff-film stage: the same parameters, membrane bounds that include real packaging
+        // film (1e4-2e4 N/m), on a scene stepped finely enough to carry it.
+        let stiff = CalibrateConfig::load(&configs.join("calibrate-si-stiff.toml")).unwrap();
+        assert_eq!(si.space().names(), stiff.space().names());
+        for spec in stiff.params.iter().filter(|p| p.name.starts_with("k_tri_")) {
+            if spec.name != "k_tri_d" {
+                assert!(spec.lower <= 1.0e4 && spec.upper >= 2.0e4, "{}", spec.name);
+            }
+        }
+        let scene = rlpkg_sim::SceneConfig::load(&configs.join("physical-stiff.toml")).unwrap();
+        assert_eq!(
+            Path::new(&stiff.sim.preset),
+            Path::new("configs/physical-stiff.toml")
+        );
+        assert!(scene.integrator.substep_rate_hz >= 1200.0);
     }
 
     #[test]
