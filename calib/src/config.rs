@@ -372,6 +372,13 @@ upper = 2.0
             Path::new("configs/physical-stiff.toml")
         );
         assert!(scene.integrator.substep_rate_hz >= 1200.0);
+        let fitted =
+            rlpkg_sim::SceneConfig::load(&configs.join("calibrated-si-stiff.toml")).unwrap();
+        assert_eq!(
+            fitted.integrator.substep_rate_hz,
+            scene.integrator.substep_rate_hz
+        );
+        assert!(fitted.disc.hold_at_recorded_start && fitted.disc.hold_orientation);
     }
 
     #[test]
