@@ -226,6 +226,37 @@ fn real_film_stiffness_is_stable_at_the_large_step() {
 }
 
 #[test]
+fn real_film_is_stable_at_the_real_film_scenes_step() {
+    // configs/physical-stiff.toml (1200 substeps/s x 10 sweeps, Chebyshev 0.95) at both ends of
+    // real packaging film: held still, the package settles with the disc inside (the health check
+    // reports a disc outside the package).
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/physical-stiff.toml");
+    for film in [1.0e4, 2.0e4] {
+        let mut c = SceneConfig::load(&path).unwrap();
+        c.params.k_tri_e = film;
+        c.params.k_tri_a = film;
+        let model = Arc::new(Model::new(&c).unwrap());
+        let mut sim = Simulator::new(model, vec![spec(&c, 0.01)]).unwrap();
+        sim.step(steps(&sim, 2.5));
+        assert!(
+            sim.health_events().is_empty(),
+            "{film}: {:?}",
+            sim.health_events()
+        );
+        let speed = sim
+            .particle_velocities(0)
+            .iter()
+            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+            .fold(0.0f32, f32::max);
+        assert!(
+            speed < 0.05,
+            "{film}: still moving at {speed} m/s after 2.5 s held"
+        );
+    }
+}
+
+#[test]
 fn the_disc_stays_inside_through_a_fast_lift_and_a_60_degree_tilt() {
     let c = descent([16, 19], 600.0, 10);
     let model = Arc::new(Model::new(&c).unwrap());
