@@ -48,6 +48,14 @@ fn steps(sim: &Simulator, seconds: f64) -> u64 {
     (seconds / sim.dt() as f64).round() as u64
 }
 
+/// Fastest particle's speed (m/s).
+fn max_particle_speed(sim: &Simulator, env: usize) -> f32 {
+    sim.particle_velocities(env)
+        .iter()
+        .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+        .fold(0.0f32, f32::max)
+}
+
 /// Mean velocity of the package particles.
 fn mean_velocity(sim: &Simulator, env: usize) -> [f64; 3] {
     let n = sim.model().num_package;
@@ -217,11 +225,7 @@ fn real_film_stiffness_is_stable_at_the_large_step() {
     let mut sim = Simulator::new(model, vec![spec(&c, 0.01)]).unwrap();
     sim.step(steps(&sim, 2.5));
     assert!(sim.health_events().is_empty(), "{:?}", sim.health_events());
-    let speed = sim
-        .particle_velocities(0)
-        .iter()
-        .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
-        .fold(0.0f32, f32::max);
+    let speed = max_particle_speed(&sim, 0);
     assert!(speed < 0.05, "still moving at {speed} m/s after 2.5 s held");
 }
 
@@ -244,11 +248,7 @@ fn real_film_is_stable_at_the_real_film_scenes_step() {
             "{film}: {:?}",
             sim.health_events()
         );
-        let speed = sim
-            .particle_velocities(0)
-            .iter()
-            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
-            .fold(0.0f32, f32::max);
+        let speed = max_particle_speed(&sim, 0);
         assert!(
             speed < 0.05,
             "{film}: still moving at {speed} m/s after 2.5 s held"
