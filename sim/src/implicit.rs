@@ -151,14 +151,71 @@ impl<T: Real> Sym3<T> {
     }
 }
 
-/// Weight of corner `k` in the columns of `F = Ds·Dm` (`Ds = [x1 − x0, x2 − x0]`):
-/// `F_c = Σ_k w_kc·x_k`.
-#[inline(always)]
-fn corner_weights<T: Real>(dm: [[T; 2]; 2], corner: usize) -> [T; 2] {
-    match corner {
-        0 => [-(dm[0][0] + dm[1][0]), -(dm[0][1] + dm[1][1])],
-        1 => [dm[0][0], dm[0][1]],
-        _ => [dm[1][0], dm[1][1]],
+/// Which corner of a triangle the vertex being solved is: one corner for every lane (`usize`), or
+/// one per lane ([`LaneCorners`]). Both give the same arithmetic per lane.
+pub trait Corner<T: Real>: Copy {
+    /// Weight of the corner in the columns of `F = Ds·Dm` (`Ds = [x1 − x0, x2 − x0]`):
+    /// `F_c = Σ_k w_kc·x_k`.
+    fn weights(self, dm: [[T; 2]; 2]) -> [T; 2];
+    /// The corner's gradient of the area ratio, from those of corners 1 (`d1`) and 2 (`d2`).
+    fn area_gradient(self, d1: V3<T>, d2: V3<T>) -> V3<T>;
+}
+
+impl<T: Real> Corner<T> for usize {
+    #[inline(always)]
+    fn weights(self, dm: [[T; 2]; 2]) -> [T; 2] {
+        match self {
+            0 => [-(dm[0][0] + dm[1][0]), -(dm[0][1] + dm[1][1])],
+            1 => [dm[0][0], dm[0][1]],
+            _ => [dm[1][0], dm[1][1]],
+        }
+    }
+    #[inline(always)]
+    fn area_gradient(self, d1: V3<T>, d2: V3<T>) -> V3<T> {
+        match self {
+            0 => -(d1 + d2),
+            1 => d1,
+            _ => d2,
+        }
+    }
+}
+
+/// A corner per lane, for one vertex's triangles side by side in the lanes of `T`: 1 in the
+/// lanes where the vertex is corner 0 (`first`) or corner 1 (`second`), 0 elsewhere.
+#[derive(Clone, Copy, Debug)]
+pub struct LaneCorners<T> {
+    /// 1 where the vertex is corner 0.
+    pub first: T,
+    /// 1 where the vertex is corner 1.
+    pub second: T,
+}
+
+impl<T: Real> Corner<T> for LaneCorners<T> {
+    #[inline(always)]
+    fn weights(self, dm: [[T; 2]; 2]) -> [T; 2] {
+        let half = T::splat(0.5);
+        let pick = |c0: T, c1: T, c2: T| {
+            T::select_lt(
+                half,
+                self.first,
+                c0,
+                T::select_lt(half, self.second, c1, c2),
+            )
+        };
+        [
+            pick(-(dm[0][0] + dm[1][0]), dm[0][0], dm[1][0]),
+            pick(-(dm[0][1] + dm[1][1]), dm[0][1], dm[1][1]),
+        ]
+    }
+    #[inline(always)]
+    fn area_gradient(self, d1: V3<T>, d2: V3<T>) -> V3<T> {
+        let half = T::splat(0.5);
+        V3::select_lt(
+            half,
+            self.first,
+            -(d1 + d2),
+            V3::select_lt(half, self.second, d1, d2),
+        )
     }
 }
 
@@ -196,7 +253,7 @@ impl<T: Real> Membrane<T> {
 pub fn triangle_vertex<T: Real>(
     x: [V3<T>; 3],
     v: [V3<T>; 3],
-    corner: usize,
+    corner: impl Corner<T>,
     dm: [[T; 2]; 2],
     rest_area: (T, T),
     mat: Membrane<T>,
@@ -223,7 +280,7 @@ pub fn triangle_vertex<T: Real>(
     let e12 = (f1.dot(g2) + f2.dot(g1)) * half;
     let p1 = f1 * k_mu + (f1 * e11 + f2 * e12) * k_damp;
     let p2 = f2 * k_mu + (f1 * e12 + f2 * e22) * k_damp;
-    let w = corner_weights(dm, corner);
+    let w = corner.weights(dm);
     // dE/dx_k = P·w_k (P = ∂E/∂F, columns p1, p2).
     let mut grad = p1 * w[0] + p2 * w[1];
 
@@ -235,11 +292,7 @@ pub fn triangle_vertex<T: Real>(
     let dcdq = x20.cross(n) * half_inv;
     let dcdr = n.cross(x10) * half_inv;
     let dcdt = dcdq.dot(v[1]) + dcdr.dot(v[2]) - (dcdq + dcdr).dot(v[0]);
-    let dj = match corner {
-        0 => -(dcdq + dcdr),
-        1 => dcdq,
-        _ => dcdr,
-    };
+    let dj = corner.area_gradient(dcdq, dcdr);
     grad += dj * (k_lambda * c + k_damp * dcdt);
 
     let ww = w[0] * w[0] + w[1] * w[1];
@@ -639,6 +692,52 @@ mod tests {
         );
         assert_vec_close(f, warp, 1e-12);
         assert_psd(&k);
+    }
+
+    #[test]
+    fn corners_per_lane_match_one_corner_per_call_bit_for_bit() {
+        use crate::math::Lanes;
+        type L4 = Lanes<4>;
+        let x32 = |a: [f32; 3]| V3::new(a[0], a[1], a[2]);
+        let x = [
+            x32([0.0, 0.01, 0.0]),
+            x32([0.11, -0.004, 0.003]),
+            x32([0.02, 0.006, 0.13]),
+        ];
+        let v = [
+            x32([0.3, -0.1, 0.0]),
+            x32([0.0, 0.2, -0.4]),
+            x32([0.1, 0.0, 0.05]),
+        ];
+        let dm = [[10.0f32, -2.0], [0.0, 8.0]];
+        let inv_area = (dm[0][0] * dm[1][1] - dm[0][1] * dm[1][0]) * 2.0;
+        let mat = Membrane::new([2.0e3f32, 3.0e3, 0.1]);
+        let lanes = |a: V3<f32>| V3::new(L4::splat(a.x), L4::splat(a.y), L4::splat(a.z));
+        // Lanes 0..3 are corners 0, 1, 2, 1.
+        let corners = LaneCorners {
+            first: Lanes([1.0, 0.0, 0.0, 0.0]),
+            second: Lanes([0.0, 1.0, 0.0, 1.0]),
+        };
+        let (f, k) = triangle_vertex(
+            x.map(lanes),
+            v.map(lanes),
+            corners,
+            dm.map(|row| row.map(L4::splat)),
+            (L4::splat(1.0 / inv_area), L4::splat(inv_area)),
+            Membrane {
+                mu: L4::splat(mat.mu),
+                lambda: L4::splat(mat.lambda),
+                damp: L4::splat(mat.damp),
+                alpha: L4::splat(mat.alpha),
+            },
+            L4::splat(60.0),
+        );
+        for (lane, corner) in [0usize, 1, 2, 1].into_iter().enumerate() {
+            let (fc, kc) = triangle_vertex(x, v, corner, dm, (1.0 / inv_area, inv_area), mat, 60.0);
+            let got = [f.x.0[lane], f.y.0[lane], f.z.0[lane]].map(f32::to_bits);
+            assert_eq!(got, [fc.x, fc.y, fc.z].map(f32::to_bits), "lane {lane}");
+            assert_eq!(k.m.map(|e| e.0[lane].to_bits()), kc.m.map(f32::to_bits));
+        }
     }
 
     #[test]

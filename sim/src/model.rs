@@ -91,61 +91,63 @@ pub struct Model {
     pub cup_particle_mass: f32,
     /// The disc's shape.
     pub disc: DiscShape,
-    /// Elements around each package vertex (for the block-descent integrator).
+    /// Triangles around each package vertex (for the block-descent integrator).
     pub adjacency: VertexAdjacency,
 }
 
-/// For each package vertex, the package triangles and bending edges it belongs to, with its
-/// place in them (compressed rows: vertex `i`'s entries are `starts[i]..starts[i + 1]`).
+/// A package triangle seen from one of its corners, with what a block-descent sweep needs of its
+/// rest shape computed once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CornerTriangle {
+    /// Particle indices (vertex 0, 1, 2).
+    pub idx: [u32; 3],
+    /// Which of them the vertex is (0-2).
+    pub corner: u8,
+    /// The rest shape's `Dm`.
+    pub dm: [[f32; 2]; 2],
+    /// Rest area `A0` and `1 / A0`, in f32 as [`TriangleRest::inv_rest_area`].
+    pub rest_area: (f32, f32),
+}
+
+/// For each package vertex, the package triangles it belongs to (compressed rows: vertex `i`'s
+/// entries are `starts[i]..starts[i + 1]`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct VertexAdjacency {
     /// Row starts into `triangles`, one per package vertex plus one.
     pub triangle_starts: Vec<u32>,
-    /// (index into `Model::package_triangles`, corner 0-2).
-    pub triangles: Vec<(u32, u8)>,
-    /// Row starts into `edges`, one per package vertex plus one.
-    pub edge_starts: Vec<u32>,
-    /// (index into `Model::package_edges`, role 0-3: opposite vertices, then the hinge).
-    pub edges: Vec<(u32, u8)>,
+    /// The triangles, in the order of `Model::package_triangles` within each row.
+    pub triangles: Vec<CornerTriangle>,
 }
 
 impl VertexAdjacency {
-    fn new(num_vertices: usize, triangles: &[Triangle], edges: &[BendingEdge]) -> Self {
-        fn rows<const N: usize>(n: usize, elements: &[[u32; N]]) -> (Vec<u32>, Vec<(u32, u8)>) {
-            let mut lists = vec![Vec::new(); n];
-            for (e, idx) in elements.iter().enumerate() {
-                for (place, &v) in idx.iter().enumerate() {
-                    lists[v as usize].push((e as u32, place as u8));
-                }
+    fn new(num_vertices: usize, triangles: &[Triangle]) -> Self {
+        let mut rows = vec![Vec::new(); num_vertices];
+        for tri in triangles {
+            let inv_rest_area = tri.rest.inv_rest_area();
+            for (corner, &v) in tri.idx.iter().enumerate() {
+                rows[v as usize].push(CornerTriangle {
+                    idx: tri.idx,
+                    corner: corner as u8,
+                    dm: tri.rest.dm,
+                    rest_area: (1.0 / inv_rest_area, inv_rest_area),
+                });
             }
-            let mut starts = vec![0u32];
-            let mut flat = Vec::new();
-            for list in lists {
-                flat.extend(list);
-                starts.push(flat.len() as u32);
-            }
-            (starts, flat)
         }
-        let tri_idx: Vec<[u32; 3]> = triangles.iter().map(|t| t.idx).collect();
-        let edge_idx: Vec<[u32; 4]> = edges.iter().map(|e| e.idx).collect();
-        let (triangle_starts, triangles) = rows(num_vertices, &tri_idx);
-        let (edge_starts, edges) = rows(num_vertices, &edge_idx);
+        let mut triangle_starts = vec![0u32];
+        let mut flat = Vec::new();
+        for row in rows {
+            flat.extend(row);
+            triangle_starts.push(flat.len() as u32);
+        }
         VertexAdjacency {
             triangle_starts,
-            triangles,
-            edge_starts,
-            edges,
+            triangles: flat,
         }
     }
 
     /// Triangles around vertex `i`.
-    pub fn triangles_of(&self, i: usize) -> &[(u32, u8)] {
+    pub fn triangles_of(&self, i: usize) -> &[CornerTriangle] {
         &self.triangles[self.triangle_starts[i] as usize..self.triangle_starts[i + 1] as usize]
-    }
-
-    /// Bending edges around vertex `i`.
-    pub fn edges_of(&self, i: usize) -> &[(u32, u8)] {
-        &self.edges[self.edge_starts[i] as usize..self.edge_starts[i + 1] as usize]
     }
 }
 
@@ -334,7 +336,7 @@ impl Model {
                 })
             })
             .collect();
-        let adjacency = VertexAdjacency::new(num_package, &package_triangles, &package_edges);
+        let adjacency = VertexAdjacency::new(num_package, &package_triangles);
         Ok(Model {
             adjacency,
             config: config.clone(),

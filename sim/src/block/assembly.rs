@@ -3,10 +3,10 @@
 //! [`super::Block::substep`]'s force evaluation it belongs to.
 
 use crate::forces::{self, ContactMaterial};
-use crate::math::{Lanes, Real, V3};
+use crate::math::{Real, V3};
 use crate::model::{BendingEdge, Model, Triangle};
 
-use super::{get3, set3, LaneDisc, LaneParams, LaneSpring, StepConstants, L};
+use super::{get3, set3, LaneDisc, LaneParams, LaneSpring, StepConstants, E8, ELEMENT_LANES, L};
 
 /// Attachment springs, membrane triangles and part of the bending, accumulated into `f`
 /// (cleared first).
@@ -113,10 +113,6 @@ fn triangle_forces<const W: usize>(
         f[c] += fs[2];
     }
 }
-
-/// Elements processed together by the single-environment path.
-const ELEMENT_LANES: usize = 8;
-type E8 = Lanes<ELEMENT_LANES>;
 
 /// Single-environment blocks (lane 0 only): triangles [`ELEMENT_LANES`] at a time, SIMD across
 /// elements. Each element's arithmetic is the same as in the per-environment path and the forces

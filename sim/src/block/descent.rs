@@ -17,12 +17,12 @@
 
 use crate::forces::{self, ContactMaterial};
 use crate::implicit::{
-    bending_element, contact_vertex, spring_vertex, triangle_vertex, Membrane, Sym3,
+    bending_element, contact_vertex, spring_vertex, triangle_vertex, LaneCorners, Membrane, Sym3,
 };
 use crate::math::{Lanes, Quat, Real, V3};
 use crate::model::Model;
 
-use super::{Block, StepConstants, L};
+use super::{get3, set3, Block, StepConstants, E8, ELEMENT_LANES, L};
 
 /// A 6x6 symmetric system of one lane block: the disc's translation and rotation.
 struct Disc6<const W: usize> {
@@ -39,33 +39,27 @@ impl<const W: usize> Disc6<W> {
     }
 
     /// Adds a force `f` acting at arm `r` from the centre, with stiffness `k` (with respect to the
-    /// point's position), in lanes where `gap < 0`: generalised force `[f, r × f]`, Hessian
-    /// `JᵀKJ` with `J = [I, −[r]×]`. Other lanes are left bit for bit as they were.
+    /// point's position), in lanes where `gap < 0` (see [`point_terms`]). Other lanes are left
+    /// bit for bit as they were.
     #[inline(always)]
     fn add_point(&mut self, gap: L<W>, f: V3<L<W>>, k: &Sym3<L<W>>, r: V3<L<W>>) {
+        let (g, h) = point_terms(f, k, r);
+        self.add_terms(gap, |a| g[a], |n| h[n]);
+    }
+
+    /// Adds the terms of one point (entry `a` of its generalised force `g(a)`, entry `n` of its
+    /// Hessian's upper triangle `h(n)`, as [`point_terms`] returns them) in lanes where `gap < 0`.
+    #[inline(always)]
+    fn add_terms(&mut self, gap: L<W>, g: impl Fn(usize) -> L<W>, h: impl Fn(usize) -> L<W>) {
         let zero = L::splat(0.0);
-        let t = r.cross(f);
-        for (a, v) in [f.x, f.y, f.z, t.x, t.y, t.z].into_iter().enumerate() {
-            self.g[a] = L::select_lt(gap, zero, self.g[a] + v, self.g[a]);
+        for a in 0..6 {
+            self.g[a] = L::select_lt(gap, zero, self.g[a] + g(a), self.g[a]);
         }
-        // Columns of J: the point's displacement per unit of each coordinate.
-        let one = L::splat(1.0);
-        let ex = V3::new(one, zero, zero);
-        let ey = V3::new(zero, one, zero);
-        let ez = V3::new(zero, zero, one);
-        let cols = [ex, ey, ez, ex.cross(r), ey.cross(r), ez.cross(r)];
-        let kc = [
-            k.mul_vec(cols[0]),
-            k.mul_vec(cols[1]),
-            k.mul_vec(cols[2]),
-            k.mul_vec(cols[3]),
-            k.mul_vec(cols[4]),
-            k.mul_vec(cols[5]),
-        ];
+        let mut n = 0;
         for a in 0..6 {
             for b in a..6 {
-                let v = cols[a].dot(kc[b]);
-                self.h[a][b] = L::select_lt(gap, zero, self.h[a][b] + v, self.h[a][b]);
+                self.h[a][b] = L::select_lt(gap, zero, self.h[a][b] + h(n), self.h[a][b]);
+                n += 1;
             }
         }
     }
@@ -115,6 +109,67 @@ impl<const W: usize> Disc6<W> {
     }
 }
 
+/// A force `f` with stiffness `k` (with respect to the point's position) acting at arm `r` from
+/// the disc's centre: the generalised force `[f, r × f]` and the upper triangle of the Hessian
+/// `JᵀKJ`, `J = [I, −[r]×]`, row by row.
+#[inline(always)]
+fn point_terms<T: Real>(f: V3<T>, k: &Sym3<T>, r: V3<T>) -> ([T; 6], [T; 21]) {
+    let zero = T::splat(0.0);
+    let t = r.cross(f);
+    // Columns of J: the point's displacement per unit of each coordinate.
+    let one = T::splat(1.0);
+    let ex = V3::new(one, zero, zero);
+    let ey = V3::new(zero, one, zero);
+    let ez = V3::new(zero, zero, one);
+    let cols = [ex, ey, ez, ex.cross(r), ey.cross(r), ez.cross(r)];
+    let kc = [
+        k.mul_vec(cols[0]),
+        k.mul_vec(cols[1]),
+        k.mul_vec(cols[2]),
+        k.mul_vec(cols[3]),
+        k.mul_vec(cols[4]),
+        k.mul_vec(cols[5]),
+    ];
+    let mut h = [zero; 21];
+    let mut n = 0;
+    for a in 0..6 {
+        for b in a..6 {
+            h[n] = cols[a].dot(kc[b]);
+            n += 1;
+        }
+    }
+    ([f.x, f.y, f.z, t.x, t.y, t.z], h)
+}
+
+/// Contact of a particle at `x` moving with `v` with the disc at pose (`com`, `q`) moving with
+/// (`disc_v`, `disc_w`), through the frozen contact `normal` (world) and `point` (body frame):
+/// gap (negative when touching), force on the particle, stiffness, arm from the centre to the
+/// contact point.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn disc_contact_at<T: Real>(
+    x: V3<T>,
+    v: V3<T>,
+    normal: V3<T>,
+    point: V3<T>,
+    (com, q): (V3<T>, Quat<T>),
+    (disc_v, disc_w): (V3<T>, V3<T>),
+    (rad, reach2): (T, T),
+    material: ContactMaterial<T>,
+    inv_h: T,
+) -> (T, V3<T>, Sym3<T>, V3<T>) {
+    let arm = q.rotate(point);
+    let bx = com + arm;
+    let rel = x - com;
+    let dist2 = rel.dot(rel);
+    let gap = normal.dot(x - bx) - rad;
+    // Beyond the disc's bounding sphere a frozen contact plane would reach too far.
+    let gap = T::select_lt(reach2, dist2, T::splat(1.0), gap);
+    let surface_v = disc_v + disc_w.cross(arm);
+    let (f, kk) = contact_vertex(gap, normal, v - surface_v, material, inv_h);
+    (gap, f, kk, arm)
+}
+
 /// The rotation vector taking `from` to `to` (both unit quaternions), short way round.
 #[inline(always)]
 fn rotation_between<const W: usize>(to: Quat<L<W>>, from: Quat<L<W>>) -> V3<L<W>> {
@@ -144,6 +199,27 @@ fn turned<const W: usize>(q: Quat<L<W>>, theta: V3<L<W>>) -> Quat<L<W>> {
 fn world_inertia_times<const W: usize>(q: Quat<L<W>>, i: V3<L<W>>, u: V3<L<W>>) -> V3<L<W>> {
     let b = q.rotate_inv(u);
     q.rotate(V3::new(b.x * i.x, b.y * i.y, b.z * i.z))
+}
+
+/// Lane `e` of `v`, in every lane of the block's vectors (used with one-lane blocks).
+#[inline(always)]
+fn lane_vector<const W: usize>(v: &V3<E8>, e: usize) -> V3<L<W>> {
+    V3::new(L::splat(v.x.0[e]), L::splat(v.y.0[e]), L::splat(v.z.0[e]))
+}
+
+/// Lane `e` of `m`, in every lane of the block's matrices (used with one-lane blocks).
+#[inline(always)]
+fn lane_matrix<const W: usize>(m: &Sym3<E8>, e: usize) -> Sym3<L<W>> {
+    Sym3 {
+        m: [
+            L::splat(m.m[0].0[e]),
+            L::splat(m.m[1].0[e]),
+            L::splat(m.m[2].0[e]),
+            L::splat(m.m[3].0[e]),
+            L::splat(m.m[4].0[e]),
+            L::splat(m.m[5].0[e]),
+        ],
+    }
 }
 
 impl<const W: usize> Block<W> {
@@ -211,6 +287,7 @@ impl<const W: usize> Block<W> {
             let y = self.x[i] + self.v[i] * h + gravity * h2;
             self.inertia_target[i] = y;
             self.x[i] = keep(y, self.x[i]);
+            self.x_rate[i] = (self.x[i] - self.x_start[i]) * inv_h;
         }
         let disc_start = self.disc;
         let inertia = p.disc_inertia;
@@ -299,39 +376,10 @@ impl<const W: usize> Block<W> {
                     num_package - 1 - n
                 };
                 let xi = self.x[i];
-                let vi = (xi - self.x_start[i]) * inv_h;
+                let vi = self.x_rate[i];
                 let mut force = (self.inertia_target[i] - xi) * inertial;
                 let mut stiff = Sym3::diagonal(inertial);
-                for &(tri, corner) in model.adjacency.triangles_of(i) {
-                    let tri = &model.package_triangles[tri as usize];
-                    let [a, b, c] = [
-                        tri.idx[0] as usize,
-                        tri.idx[1] as usize,
-                        tri.idx[2] as usize,
-                    ];
-                    let dm = tri.rest.dm;
-                    let (f, kk) = triangle_vertex(
-                        [self.x[a], self.x[b], self.x[c]],
-                        [
-                            (self.x[a] - self.x_start[a]) * inv_h,
-                            (self.x[b] - self.x_start[b]) * inv_h,
-                            (self.x[c] - self.x_start[c]) * inv_h,
-                        ],
-                        corner as usize,
-                        [
-                            [L::splat(dm[0][0]), L::splat(dm[0][1])],
-                            [L::splat(dm[1][0]), L::splat(dm[1][1])],
-                        ],
-                        (
-                            L::splat(1.0 / tri.rest.inv_rest_area()),
-                            L::splat(tri.rest.inv_rest_area()),
-                        ),
-                        membrane,
-                        inv_h,
-                    );
-                    force += f;
-                    stiff.add_assign(kk);
-                }
+                self.add_membrane(model, i, membrane, inv_h, &mut force, &mut stiff);
                 // Bending, evaluated at the start of the sweep (it is soft: lagging it costs
                 // little convergence and saves three of its four evaluations).
                 force += self.bend_force[i];
@@ -350,8 +398,8 @@ impl<const W: usize> Block<W> {
                         }
                         let spring = &self.springs[s as usize];
                         let c = cup_start + s as usize;
-                        super::set3(&mut anchor, l, super::get3(&self.x[c], l));
-                        super::set3(&mut anchor_v, l, super::get3(&self.v[c], l));
+                        set3(&mut anchor, l, get3(&self.x[c], l));
+                        set3(&mut anchor_v, l, get3(&self.v[c], l));
                         rest.0[l] = spring.rest.0[l];
                         on.0[l] = spring.sealed.0[l];
                     }
@@ -376,6 +424,7 @@ impl<const W: usize> Block<W> {
                 }
                 let dx = stiff.solve(force);
                 self.x[i] = keep(xi + dx, xi);
+                self.x_rate[i] = (self.x[i] - self.x_start[i]) * inv_h;
             }
 
             // Chebyshev acceleration (Wang 2015, as in the VBD paper): over-relax each sweep
@@ -391,6 +440,7 @@ impl<const W: usize> Block<W> {
                     for i in 0..num_package {
                         let older = self.x_older[i];
                         self.x[i] = keep((self.x[i] - older) * w + older, self.x[i]);
+                        self.x_rate[i] = (self.x[i] - self.x_start[i]) * inv_h;
                     }
                 }
                 std::mem::swap(&mut self.x_older, &mut self.x_before);
@@ -421,11 +471,21 @@ impl<const W: usize> Block<W> {
                 let col = [col.x, col.y, col.z];
                 sys.h[3 + a][3 + a..6].copy_from_slice(&col[a..3]);
             }
-            for idx in 0..self.disc_candidates.len() {
-                let i = self.disc_candidates[idx] as usize;
-                let (gap, f, kk, arm) =
-                    self.disc_contact(i, com, q, disc_v, disc_w, rad, reach2, inv_h);
-                sys.add_point(gap, -f, &kk, arm);
+            if W == 1 {
+                self.add_disc_contacts_across_elements(
+                    &mut sys,
+                    (com, q),
+                    (disc_v, disc_w),
+                    (rad, reach2),
+                    inv_h,
+                );
+            } else {
+                for idx in 0..self.disc_candidates.len() {
+                    let i = self.disc_candidates[idx] as usize;
+                    let (gap, f, kk, arm) =
+                        self.disc_contact(i, com, q, disc_v, disc_w, rad, reach2, inv_h);
+                    sys.add_point(gap, -f, &kk, arm);
+                }
             }
             for rp in &model.disc.rim_points {
                 let r = q.rotate(V3::splat(*rp));
@@ -459,7 +519,7 @@ impl<const W: usize> Block<W> {
         // 6. Velocities from the step's displacement.
         let max_speed = L::<W>::splat(k.max_particle_speed);
         for i in 0..num_package {
-            let v1 = (self.x[i] - self.x_start[i]) * inv_h;
+            let v1 = self.x_rate[i];
             let speed = v1.length();
             let v1 = V3::select_lt(max_speed, speed, v1 * (max_speed / speed), v1);
             self.v[i] = keep(v1, self.v[i]);
@@ -484,8 +544,8 @@ impl<const W: usize> Block<W> {
             let mut vj = V3::<L<W>>::zero();
             for l in 0..W {
                 let j = spring.target[l] as usize;
-                super::set3(&mut xj, l, super::get3(&self.x[j], l));
-                super::set3(&mut vj, l, super::get3(&self.v[j], l));
+                set3(&mut xj, l, get3(&self.x[j], l));
+                set3(&mut vj, l, get3(&self.v[j], l));
             }
             let f = forces::spring(
                 self.x[i],
@@ -501,6 +561,94 @@ impl<const W: usize> Block<W> {
         self.update_seals(model, k, tq, &t);
     }
 
+    /// Adds the membrane force and stiffness of package vertex `i` to `force` and `stiff`, one
+    /// triangle at a time in adjacency order.
+    #[inline(always)]
+    fn add_membrane(
+        &self,
+        model: &Model,
+        i: usize,
+        membrane: Membrane<L<W>>,
+        inv_h: L<W>,
+        force: &mut V3<L<W>>,
+        stiff: &mut Sym3<L<W>>,
+    ) {
+        if W == 1 {
+            return self.add_membrane_across_elements(model, i, membrane, inv_h, force, stiff);
+        }
+        for tri in model.adjacency.triangles_of(i) {
+            let [a, b, c] = tri.idx.map(|j| j as usize);
+            let (area, inv_area) = tri.rest_area;
+            let (f, kk) = triangle_vertex(
+                [self.x[a], self.x[b], self.x[c]],
+                [self.x_rate[a], self.x_rate[b], self.x_rate[c]],
+                tri.corner as usize,
+                [
+                    [L::splat(tri.dm[0][0]), L::splat(tri.dm[0][1])],
+                    [L::splat(tri.dm[1][0]), L::splat(tri.dm[1][1])],
+                ],
+                (L::splat(area), L::splat(inv_area)),
+                membrane,
+                inv_h,
+            );
+            *force += f;
+            stiff.add_assign(kk);
+        }
+    }
+
+    /// [`Self::add_membrane`] for a single-environment block (lane 0 only): the vertex's
+    /// triangles side by side in [`ELEMENT_LANES`] lanes, each with the same arithmetic as in
+    /// the per-environment path, summed in the same order, so the results are bit-identical.
+    #[inline(always)]
+    fn add_membrane_across_elements(
+        &self,
+        model: &Model,
+        i: usize,
+        membrane: Membrane<L<W>>,
+        inv_h: L<W>,
+        force: &mut V3<L<W>>,
+        stiff: &mut Sym3<L<W>>,
+    ) {
+        let membrane = Membrane {
+            mu: E8::splat(membrane.mu.0[0]),
+            lambda: E8::splat(membrane.lambda.0[0]),
+            damp: E8::splat(membrane.damp.0[0]),
+            alpha: E8::splat(membrane.alpha.0[0]),
+        };
+        let inv_h = E8::splat(inv_h.0[0]);
+        for chunk in model.adjacency.triangles_of(i).chunks(ELEMENT_LANES) {
+            let mut xs = [V3::<E8>::zero(); 3];
+            let mut vs = [V3::<E8>::zero(); 3];
+            let mut dm = [[E8::splat(0.0); 2]; 2];
+            let mut area = E8::splat(1.0);
+            let mut inv_area = E8::splat(1.0);
+            let mut first = E8::splat(0.0);
+            let mut second = E8::splat(0.0);
+            for e in 0..ELEMENT_LANES {
+                // Short chunks repeat their last triangle; those lanes are not added below.
+                let tri = &chunk[e.min(chunk.len() - 1)];
+                for (k, &j) in tri.idx.iter().enumerate() {
+                    set3(&mut xs[k], e, get3(&self.x[j as usize], 0));
+                    set3(&mut vs[k], e, get3(&self.x_rate[j as usize], 0));
+                }
+                for (r, row) in tri.dm.iter().enumerate() {
+                    for (c, value) in row.iter().enumerate() {
+                        dm[r][c].0[e] = *value;
+                    }
+                }
+                (area.0[e], inv_area.0[e]) = tri.rest_area;
+                first.0[e] = (tri.corner == 0) as u8 as f32;
+                second.0[e] = (tri.corner == 1) as u8 as f32;
+            }
+            let corners = LaneCorners { first, second };
+            let (f, kk) = triangle_vertex(xs, vs, corners, dm, (area, inv_area), membrane, inv_h);
+            for e in 0..chunk.len() {
+                *force += lane_vector(&f, e);
+                stiff.add_assign(lane_matrix(&kk, e));
+            }
+        }
+    }
+
     /// Bending forces and stiffness blocks of every package vertex at the current positions.
     #[inline(always)]
     fn bending_at_sweep_start(&mut self, model: &Model, inv_h: L<W>) {
@@ -513,6 +661,9 @@ impl<const W: usize> Block<W> {
             *k = Sym3::zero();
         }
         let p = self.params;
+        if W == 1 {
+            return self.bending_across_elements(model, inv_h);
+        }
         for edge in &model.package_edges {
             let id = [
                 edge.idx[0] as usize,
@@ -523,10 +674,10 @@ impl<const W: usize> Block<W> {
             let (forces, grads, s) = bending_element(
                 [self.x[id[0]], self.x[id[1]], self.x[id[2]], self.x[id[3]]],
                 [
-                    (self.x[id[0]] - self.x_start[id[0]]) * inv_h,
-                    (self.x[id[1]] - self.x_start[id[1]]) * inv_h,
-                    (self.x[id[2]] - self.x_start[id[2]]) * inv_h,
-                    (self.x[id[3]] - self.x_start[id[3]]) * inv_h,
+                    self.x_rate[id[0]],
+                    self.x_rate[id[1]],
+                    self.x_rate[id[2]],
+                    self.x_rate[id[3]],
                 ],
                 L::splat(edge.rest_angle),
                 p.edge[0],
@@ -536,6 +687,100 @@ impl<const W: usize> Block<W> {
             for ((j, f), d) in id.into_iter().zip(forces).zip(grads) {
                 self.bend_force[j] += f;
                 self.bend_stiffness[j].add_assign(Sym3::outer(d, s));
+            }
+        }
+    }
+
+    /// [`Self::bending_at_sweep_start`] for a single-environment block: [`ELEMENT_LANES`] edges
+    /// side by side, added in edge order (bit-identical, as [`Self::add_membrane_across_elements`]).
+    #[inline(always)]
+    fn bending_across_elements(&mut self, model: &Model, inv_h: L<W>) {
+        let p = self.params;
+        let (ke, kd) = (E8::splat(p.edge[0].0[0]), E8::splat(p.edge[1].0[0]));
+        let inv_h = E8::splat(inv_h.0[0]);
+        for chunk in model.package_edges.chunks(ELEMENT_LANES) {
+            let mut xs = [V3::<E8>::zero(); 4];
+            let mut vs = [V3::<E8>::zero(); 4];
+            let mut rest = E8::splat(0.0);
+            for e in 0..ELEMENT_LANES {
+                let edge = &chunk[e.min(chunk.len() - 1)];
+                for (k, &j) in edge.idx.iter().enumerate() {
+                    set3(&mut xs[k], e, get3(&self.x[j as usize], 0));
+                    set3(&mut vs[k], e, get3(&self.x_rate[j as usize], 0));
+                }
+                rest.0[e] = edge.rest_angle;
+            }
+            let (forces, grads, s) = bending_element(xs, vs, rest, ke, kd, inv_h);
+            let blocks = [
+                Sym3::outer(grads[0], s),
+                Sym3::outer(grads[1], s),
+                Sym3::outer(grads[2], s),
+                Sym3::outer(grads[3], s),
+            ];
+            for (e, edge) in chunk.iter().enumerate() {
+                for (k, &j) in edge.idx.iter().enumerate() {
+                    self.bend_force[j as usize] += lane_vector(&forces[k], e);
+                    self.bend_stiffness[j as usize].add_assign(lane_matrix(&blocks[k], e));
+                }
+            }
+        }
+    }
+
+    /// The film's contacts on the disc for a single-environment block: [`ELEMENT_LANES`]
+    /// candidates side by side, added to `sys` in candidate order (bit-identical, as
+    /// [`Self::add_membrane_across_elements`]).
+    #[inline(always)]
+    fn add_disc_contacts_across_elements(
+        &self,
+        sys: &mut Disc6<W>,
+        (com, q): (V3<L<W>>, Quat<L<W>>),
+        (disc_v, disc_w): (V3<L<W>>, V3<L<W>>),
+        (rad, reach2): (L<W>, L<W>),
+        inv_h: L<W>,
+    ) {
+        let wide = |v: V3<L<W>>| {
+            V3::new(
+                E8::splat(v.x.0[0]),
+                E8::splat(v.y.0[0]),
+                E8::splat(v.z.0[0]),
+            )
+        };
+        let pose = (
+            wide(com),
+            Quat {
+                v: wide(q.v),
+                w: E8::splat(q.w.0[0]),
+            },
+        );
+        let motion = (wide(disc_v), wide(disc_w));
+        let sizes = (E8::splat(rad.0[0]), E8::splat(reach2.0[0]));
+        let m = self.params.disc_contact;
+        let material = ContactMaterial {
+            ke: E8::splat(m.ke.0[0]),
+            kd: E8::splat(m.kd.0[0]),
+            kf: E8::splat(m.kf.0[0]),
+            mu: E8::splat(m.mu.0[0]),
+        };
+        let inv_h = E8::splat(inv_h.0[0]);
+        for chunk in self.disc_candidates.chunks(ELEMENT_LANES) {
+            let mut x = V3::<E8>::zero();
+            let mut v = V3::<E8>::zero();
+            let mut normal = V3::<E8>::zero();
+            let mut point = V3::<E8>::zero();
+            for e in 0..ELEMENT_LANES {
+                // Short chunks repeat their last candidate; those lanes are not added below.
+                let i = chunk[e.min(chunk.len() - 1)] as usize;
+                set3(&mut x, e, get3(&self.x[i], 0));
+                set3(&mut v, e, get3(&self.particle_rate(i), 0));
+                set3(&mut normal, e, get3(&self.contact_normal[i], 0));
+                set3(&mut point, e, get3(&self.contact_point[i], 0));
+            }
+            let (gap, f, kk, arm) =
+                disc_contact_at(x, v, normal, point, pose, motion, sizes, material, inv_h);
+            let (g, h) = point_terms(-f, &kk, arm);
+            for e in 0..chunk.len() {
+                let lane = |a: E8| L::<W>::splat(a.0[e]);
+                sys.add_terms(lane(gap), |a| lane(g[a]), |n| lane(h[n]));
             }
         }
     }
@@ -567,22 +812,27 @@ impl<const W: usize> Block<W> {
         reach2: L<W>,
         inv_h: L<W>,
     ) -> (L<W>, V3<L<W>>, Sym3<L<W>>, V3<L<W>>) {
-        let x = self.x[i];
-        let v = if i < self.x_start.len() {
-            (x - self.x_start[i]) * inv_h
+        disc_contact_at(
+            self.x[i],
+            self.particle_rate(i),
+            self.contact_normal[i],
+            self.contact_point[i],
+            (com, q),
+            (disc_v, disc_w),
+            (rad, reach2),
+            self.params.disc_contact,
+            inv_h,
+        )
+    }
+
+    /// The step velocity of particle `i`'s current iterate (package particles) or its velocity
+    /// (cup particles, which move kinematically).
+    #[inline(always)]
+    fn particle_rate(&self, i: usize) -> V3<L<W>> {
+        if i < self.x_rate.len() {
+            self.x_rate[i]
         } else {
             self.v[i]
-        };
-        let normal = self.contact_normal[i];
-        let arm = q.rotate(self.contact_point[i]);
-        let bx = com + arm;
-        let rel = x - com;
-        let dist2 = rel.dot(rel);
-        let gap = normal.dot(x - bx) - rad;
-        // Beyond the disc's bounding sphere a frozen contact plane would reach too far.
-        let gap = L::select_lt(reach2, dist2, L::splat(1.0), gap);
-        let surface_v = disc_v + disc_w.cross(arm);
-        let (f, kk) = contact_vertex(gap, normal, v - surface_v, self.params.disc_contact, inv_h);
-        (gap, f, kk, arm)
+        }
     }
 }

@@ -39,6 +39,10 @@ pub(crate) use snapshot::LaneSnapshot;
 
 type L<const W: usize> = Lanes<W>;
 
+/// Elements processed together by the single-environment paths (SIMD across elements).
+const ELEMENT_LANES: usize = 8;
+type E8 = Lanes<ELEMENT_LANES>;
+
 /// Per-lane material parameters, masses and contact materials.
 #[derive(Clone, Copy)]
 pub(crate) struct LaneParams<const W: usize> {
@@ -182,6 +186,9 @@ pub(crate) struct Block<const W: usize> {
     /// their inertial predictions.
     x_start: Vec<V3<L<W>>>,
     inertia_target: Vec<V3<L<W>>>,
+    /// Block descent only: the step velocity `(x − x_start) / h` of each package vertex's current
+    /// iterate, kept with `x` (every element around a vertex reads it).
+    x_rate: Vec<V3<L<W>>>,
     /// Block descent only: attachment springs per package vertex (rows of `[spring; W]`, one
     /// spring index per lane or `u32::MAX`), and the particles near the disc this substep.
     spring_slot_starts: Vec<u32>,
@@ -335,6 +342,7 @@ impl<const W: usize> Block<W> {
             seal_events: Vec::new(),
             x_start: Vec::new(),
             inertia_target: Vec::new(),
+            x_rate: Vec::new(),
             spring_slot_starts: Vec::new(),
             spring_slots: Vec::new(),
             disc_candidates: Vec::new(),
@@ -347,6 +355,7 @@ impl<const W: usize> Block<W> {
         if model.config.integrator.solver == Solver::BlockDescent {
             block.x_start = vec![zero3; model.num_package];
             block.inertia_target = vec![zero3; model.num_package];
+            block.x_rate = vec![zero3; model.num_package];
             block.bend_force = vec![zero3; model.num_package];
             block.bend_stiffness = vec![Sym3::zero(); model.num_package];
             if model.config.integrator.chebyshev_rho > 0.0 {
@@ -500,6 +509,7 @@ impl<const W: usize> Block<W> {
             &self.contact_normal,
             &self.x_start,
             &self.inertia_target,
+            &self.x_rate,
             &self.bend_force,
             &self.x_before,
             &self.x_older,
