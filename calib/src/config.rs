@@ -381,6 +381,37 @@ upper = 2.0
             scene.integrator.substep_rate_hz
         );
         assert!(fitted.disc.hold_at_recorded_start && fitted.disc.hold_orientation);
+        // The coarse real-film scene: the same parameters on the 11 x 13 grid at the real-film step,
+        // starting from the fine fit, with every fitted value inside its bounds.
+        let coarse =
+            CalibrateConfig::load(&configs.join("calibrate-coarse-si-stiff.toml")).unwrap();
+        assert_eq!(si.space().names(), coarse.space().names());
+        assert_eq!(
+            Path::new(&coarse.sim.preset),
+            Path::new("configs/calibrated-si-stiff.toml")
+        );
+        let coarse_fit =
+            rlpkg_sim::SceneConfig::load(&configs.join("calibrated-coarse-si-stiff.toml")).unwrap();
+        assert_eq!(
+            coarse_fit.package.grid,
+            [6 + 5 * coarse.sim.between, 7 + 6 * coarse.sim.between]
+        );
+        assert_eq!(coarse_fit.package.grid, [11, 13]);
+        assert_eq!(
+            coarse_fit.integrator.substep_rate_hz,
+            scene.integrator.substep_rate_hz
+        );
+        let fitted_values = rlpkg_replay::Candidate::of_scene(&coarse_fit);
+        for spec in &coarse.params {
+            let value = rlpkg_replay::get_param(&fitted_values, &spec.name).unwrap();
+            assert!(
+                value > spec.lower * 1.01 && value < spec.upper / 1.01,
+                "{} = {value} at a bound of [{}, {}]",
+                spec.name,
+                spec.lower,
+                spec.upper
+            );
+        }
     }
 
     #[test]
