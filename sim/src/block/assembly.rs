@@ -3,10 +3,13 @@
 //! [`super::Block::substep`]'s force evaluation it belongs to.
 
 use crate::forces::{self, ContactMaterial};
-use crate::math::{Real, V3};
+use crate::math::{Lanes, Real, V3};
 use crate::model::{BendingEdge, Model, Triangle};
 
-use super::{get3, set3, LaneDisc, LaneParams, LaneSpring, StepConstants, E8, ELEMENT_LANES, L};
+use super::{
+    gather_elements, get3, set3, LaneDisc, LaneParams, LaneSpring, StepConstants, E8,
+    ELEMENT_LANES, L,
+};
 
 /// Attachment springs, membrane triangles and part of the bending, accumulated into `f`
 /// (cleared first).
@@ -127,17 +130,11 @@ fn triangles_across_elements<const W: usize>(
 ) {
     let mat = mat.map(E8::splat);
     for chunk in tris.chunks(ELEMENT_LANES) {
-        let mut xs = [V3::<E8>::zero(); 3];
-        let mut vs = [V3::<E8>::zero(); 3];
+        let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, x, v);
         let mut dm = [[E8::splat(0.0); 2]; 2];
         let mut inv_area = E8::splat(1.0);
         for e in 0..ELEMENT_LANES {
-            // Short chunks repeat their last element; those lanes are not added below.
             let tri = &chunk[e.min(chunk.len() - 1)];
-            for (corner, &i) in tri.idx.iter().enumerate() {
-                set3(&mut xs[corner], e, get3(&x[i as usize], 0));
-                set3(&mut vs[corner], e, get3(&v[i as usize], 0));
-            }
             for (r, row) in tri.rest.dm.iter().enumerate() {
                 for (c, value) in row.iter().enumerate() {
                     dm[r][c].0[e] = *value;
@@ -166,17 +163,10 @@ fn bending_across_elements<const W: usize>(
 ) {
     let mat = mat.map(E8::splat);
     for chunk in edges.chunks(ELEMENT_LANES) {
-        let mut xs = [V3::<E8>::zero(); 4];
-        let mut vs = [V3::<E8>::zero(); 4];
-        let mut rest = E8::splat(0.0);
-        for e in 0..ELEMENT_LANES {
-            let edge = &chunk[e.min(chunk.len() - 1)];
-            for (corner, &i) in edge.idx.iter().enumerate() {
-                set3(&mut xs[corner], e, get3(&x[i as usize], 0));
-                set3(&mut vs[corner], e, get3(&v[i as usize], 0));
-            }
-            rest.0[e] = edge.rest_angle;
-        }
+        let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, x, v);
+        let rest = Lanes(std::array::from_fn(|e| {
+            chunk[e.min(chunk.len() - 1)].rest_angle
+        }));
         let fs = forces::bending(xs, vs, rest, mat[0], mat[1]);
         for (e, edge) in chunk.iter().enumerate() {
             for (corner, &i) in edge.idx.iter().enumerate() {

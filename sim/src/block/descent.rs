@@ -22,7 +22,7 @@ use crate::implicit::{
 use crate::math::{Lanes, Quat, Real, V3};
 use crate::model::Model;
 
-use super::{get3, set3, Block, StepConstants, E8, ELEMENT_LANES, L};
+use super::{gather_elements, get3, set3, Block, StepConstants, E8, ELEMENT_LANES, L};
 
 /// A 6x6 symmetric system of one lane block: the disc's translation and rotation.
 struct Disc6<const W: usize> {
@@ -617,20 +617,14 @@ impl<const W: usize> Block<W> {
         };
         let inv_h = E8::splat(inv_h.0[0]);
         for chunk in model.adjacency.triangles_of(i).chunks(ELEMENT_LANES) {
-            let mut xs = [V3::<E8>::zero(); 3];
-            let mut vs = [V3::<E8>::zero(); 3];
+            let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, &self.x, &self.x_rate);
             let mut dm = [[E8::splat(0.0); 2]; 2];
             let mut area = E8::splat(1.0);
             let mut inv_area = E8::splat(1.0);
             let mut first = E8::splat(0.0);
             let mut second = E8::splat(0.0);
             for e in 0..ELEMENT_LANES {
-                // Short chunks repeat their last triangle; those lanes are not added below.
                 let tri = &chunk[e.min(chunk.len() - 1)];
-                for (k, &j) in tri.idx.iter().enumerate() {
-                    set3(&mut xs[k], e, get3(&self.x[j as usize], 0));
-                    set3(&mut vs[k], e, get3(&self.x_rate[j as usize], 0));
-                }
                 for (r, row) in tri.dm.iter().enumerate() {
                     for (c, value) in row.iter().enumerate() {
                         dm[r][c].0[e] = *value;
@@ -699,17 +693,10 @@ impl<const W: usize> Block<W> {
         let (ke, kd) = (E8::splat(p.edge[0].0[0]), E8::splat(p.edge[1].0[0]));
         let inv_h = E8::splat(inv_h.0[0]);
         for chunk in model.package_edges.chunks(ELEMENT_LANES) {
-            let mut xs = [V3::<E8>::zero(); 4];
-            let mut vs = [V3::<E8>::zero(); 4];
-            let mut rest = E8::splat(0.0);
-            for e in 0..ELEMENT_LANES {
-                let edge = &chunk[e.min(chunk.len() - 1)];
-                for (k, &j) in edge.idx.iter().enumerate() {
-                    set3(&mut xs[k], e, get3(&self.x[j as usize], 0));
-                    set3(&mut vs[k], e, get3(&self.x_rate[j as usize], 0));
-                }
-                rest.0[e] = edge.rest_angle;
-            }
+            let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, &self.x, &self.x_rate);
+            let rest = Lanes(std::array::from_fn(|e| {
+                chunk[e.min(chunk.len() - 1)].rest_angle
+            }));
             let (forces, grads, s) = bending_element(xs, vs, rest, ke, kd, inv_h);
             let blocks = [
                 Sym3::outer(grads[0], s),

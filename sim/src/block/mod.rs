@@ -43,6 +43,27 @@ type L<const W: usize> = Lanes<W>;
 const ELEMENT_LANES: usize = 8;
 type E8 = Lanes<ELEMENT_LANES>;
 
+/// Lane 0's positions `x` and velocities `v` at the `N` vertices of `count` elements (`vertices(e)`
+/// of element `e`), element `e` in lane `e`. Lanes past `count` repeat the last element; callers
+/// do not add them.
+#[inline(always)]
+fn gather_elements<const W: usize, const N: usize>(
+    count: usize,
+    vertices: impl Fn(usize) -> [u32; N],
+    x: &[V3<L<W>>],
+    v: &[V3<L<W>>],
+) -> ([V3<E8>; N], [V3<E8>; N]) {
+    let mut xs = [V3::<E8>::zero(); N];
+    let mut vs = [V3::<E8>::zero(); N];
+    for e in 0..ELEMENT_LANES {
+        for (k, &j) in vertices(e.min(count - 1)).iter().enumerate() {
+            set3(&mut xs[k], e, get3(&x[j as usize], 0));
+            set3(&mut vs[k], e, get3(&v[j as usize], 0));
+        }
+    }
+    (xs, vs)
+}
+
 /// Per-lane material parameters, masses and contact materials.
 #[derive(Clone, Copy)]
 pub(crate) struct LaneParams<const W: usize> {
