@@ -105,14 +105,20 @@ fn tiny_config(dir: &Path, from: &str, to: &str) {
     std::fs::write(dir.join("tiny.toml"), TINY_CARTPOLE.replace(from, to)).unwrap();
 }
 
-/// `configs/<name>` copied into `dir` with `from` replaced by `to`.
+/// The shipped config file `name` (found in one of the folders of `configs/`) copied into `dir` with
+/// `from` replaced by `to`.
 fn shipped_config(dir: &Path, name: &str, from: &str, to: &str) {
-    let text = std::fs::read_to_string(repo().join("configs").join(name)).unwrap();
+    let path = ["scenes", "calibrate", "train", "import"]
+        .iter()
+        .map(|kind| repo().join("configs").join(kind).join(name))
+        .find(|path| path.exists())
+        .unwrap_or_else(|| panic!("no shipped config {name}"));
+    let text = std::fs::read_to_string(path).unwrap();
     assert!(text.contains(from), "{name} lacks {from}");
     std::fs::write(dir.join(name), text.replace(from, to)).unwrap();
 }
 
-/// `rlpkg data import-motive` of the fixture take into `dir/out` with `dir/import.toml`.
+/// `rlpkg data import-motive` of the fixture take into `dir/out` with `dir/motive.toml`.
 fn import_args() -> Vec<String> {
     let take = repo().join("mocap/tests/fixtures/a30_m0.5_high_excerpt.csv.gz");
     args(&[
@@ -122,7 +128,7 @@ fn import_args() -> Vec<String> {
         "--out",
         "out",
         "--config",
-        "import.toml",
+        "motive.toml",
     ])
 }
 
@@ -370,7 +376,7 @@ fn cases() -> Vec<Case> {
             name: "eval of a run with --params",
             setup: |dir| {
                 let run = run_copy(dir);
-                args(&["eval", &run, "--params", "configs/calibrated.toml"])
+                args(&["eval", &run, "--params", "configs/scenes/calibrated-study.toml"])
             },
             expected: &["--params", "cannot be used with"],
         },
@@ -440,7 +446,7 @@ fn cases() -> Vec<Case> {
         Case {
             name: "three numbers for a two-number grid",
             setup: |dir| {
-                let reference = std::fs::read_to_string(repo().join("configs/reference.toml"))
+                let reference = std::fs::read_to_string(repo().join("configs/scenes/study.toml"))
                     .unwrap()
                     .replace("grid = [21, 25]", "grid = [16, 19, 3]");
                 std::fs::write(dir.join("scene.toml"), reference).unwrap();
@@ -453,14 +459,14 @@ fn cases() -> Vec<Case> {
             setup: |dir| {
                 shipped_config(
                     dir,
-                    "physical.toml",
+                    "physical-explicit.toml",
                     "size_m = [0.254, 0.3048]",
                     "size_m = [0.254, 0.3048, 0.012]",
                 );
-                args(&["simulate", &trajectory(), "--params", "physical.toml"])
+                args(&["simulate", &trajectory(), "--params", "physical-explicit.toml"])
             },
             expected: &[
-                "physical.toml",
+                "physical-explicit.toml",
                 "size_m = [0.254, 0.3048, 0.012]",
                 "invalid length 3, expected an array of length 2",
             ],
@@ -470,14 +476,14 @@ fn cases() -> Vec<Case> {
             setup: |dir| {
                 shipped_config(
                     dir,
-                    "import.toml",
+                    "motive.toml",
                     "tool_to_cup_m = [0.0, -0.005, 0.0]",
                     "tool_to_cup_m = [0.0, -0.005, 0.0, 1.0]",
                 );
                 import_args()
             },
             expected: &[
-                "import.toml: line 50: key `conversion.tool_to_cup_m`",
+                "motive.toml: line 50: key `conversion.tool_to_cup_m`",
                 "invalid length 4, expected an array of length 3",
             ],
         },
@@ -486,14 +492,14 @@ fn cases() -> Vec<Case> {
             setup: |dir| {
                 shipped_config(
                     dir,
-                    "import.toml",
+                    "motive.toml",
                     "size_m = [0.254, 0.3048]",
                     "size_m = [0.254]",
                 );
                 import_args()
             },
             expected: &[
-                "import.toml: line 62: key `package.size_m`",
+                "motive.toml: line 62: key `package.size_m`",
                 "invalid length 1, expected an array of length 2",
             ],
         },
@@ -502,14 +508,14 @@ fn cases() -> Vec<Case> {
             setup: |dir| {
                 shipped_config(
                     dir,
-                    "import.toml",
+                    "motive.toml",
                     "# rotation_xyzw = [-0.7071067811865476, 0.0, 0.0, 0.7071067811865476]\n# translation_m = [-0.4, 0.0, 0.15]",
                     "rotation_xyzw = [-0.7071067811865476, 0.0, 0.7071067811865476]\ntranslation_m = [-0.4, 0.0, 0.15]",
                 );
                 import_args()
             },
             expected: &[
-                "import.toml: line 72: key `robot.rotation_xyzw`",
+                "motive.toml: line 72: key `robot.rotation_xyzw`",
                 "invalid length 3, expected an array of length 4",
             ],
         },
@@ -518,14 +524,14 @@ fn cases() -> Vec<Case> {
             setup: |dir| {
                 shipped_config(
                     dir,
-                    "import.toml",
+                    "motive.toml",
                     "# rotation_xyzw = [-0.7071067811865476, 0.0, 0.0, 0.7071067811865476]\n# translation_m = [-0.4, 0.0, 0.15]",
                     "rotation_xyzw = [-0.7071067811865476, 0.0, 0.0, 0.7071067811865476]\ntranslation_m = [-0.4, 0.15]",
                 );
                 import_args()
             },
             expected: &[
-                "import.toml: line 73: key `robot.translation_m`",
+                "motive.toml: line 73: key `robot.translation_m`",
                 "invalid length 2, expected an array of length 3",
             ],
         },
@@ -670,7 +676,7 @@ fn cases() -> Vec<Case> {
             name: "calibration into a file",
             setup: |dir| {
                 std::fs::write(dir.join("out"), "").unwrap();
-                let config = repo().join("configs/calibrate.toml").display().to_string();
+                let config = repo().join("configs/calibrate/study.toml").display().to_string();
                 args(&["calibrate", &config, "--out", "out"])
             },
             expected: &["out: is a file", "calibrate.toml"],

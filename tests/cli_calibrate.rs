@@ -56,7 +56,7 @@ fn small_dataset(dir: &Path, frames: usize, split: &str) -> PathBuf {
 
 /// The reference scene on the coarsest grid (6 x 7) with a 0.2 s rest period instead of 2 s.
 fn quick_preset(dir: &Path) -> PathBuf {
-    let reference = std::fs::read_to_string(repo().join("configs/reference.toml")).unwrap();
+    let reference = std::fs::read_to_string(repo().join("configs/scenes/study.toml")).unwrap();
     assert!(reference.contains("rest_time_s = 2.0") && reference.contains("grid = [21, 25]"));
     let path = dir.join("quick.toml");
     let quick = reference

@@ -40,7 +40,7 @@ fn fixture(name: &str) -> String {
 
 fn config() -> String {
     root()
-        .join("configs/import.toml")
+        .join("configs/import/motive.toml")
         .to_string_lossy()
         .into_owned()
 }

@@ -61,7 +61,7 @@ fn zero_verification_rows_are_rejected() {
 fn trained_run_exports_a_file_that_matches_burn_and_evaluates() {
     let dir = tempfile::tempdir().unwrap();
     let runs = dir.path().join("runs");
-    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/pendulum.toml");
+    let config = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/train/pendulum.toml");
     let train = rlpkg(&[
         "train",
         config,

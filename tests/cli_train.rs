@@ -219,7 +219,7 @@ fn bad_configs_and_run_folders_exit_with_code_2() {
 fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     // The shipped transport config, shrunk: 2 copies on an 11 x 13 grid, 2 s episodes, 2 updates.
     let root = env!("CARGO_MANIFEST_DIR");
-    let text = std::fs::read_to_string(format!("{root}/configs/transport.toml"))
+    let text = std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
         .unwrap()
         .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
         .replace(

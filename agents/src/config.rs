@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::AgentError;
 
-/// A whole training configuration (`configs/cartpole.toml`, `configs/pendulum.toml`).
+/// A whole training configuration (`configs/train/cartpole.toml`, `configs/train/pendulum.toml`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainConfig {
@@ -668,10 +668,10 @@ epsilon = 1e-8
         assert_eq!(config_hash("abc").len(), 16);
     }
 
-    /// `configs/transport.toml` with the scene and recordings found from this crate's folder.
+    /// `configs/train/transport.toml` with the scene and recordings found from this crate's folder.
     pub(crate) fn transport_config_text() -> String {
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
-        std::fs::read_to_string(format!("{root}/configs/transport.toml"))
+        std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
             .unwrap()
             .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
             .replace(

@@ -1,4 +1,4 @@
-//! The calibration configuration (`configs/calibrate.toml`), parsed with serde and range-checked.
+//! The calibration configuration (`configs/calibrate/study.toml`), parsed with serde and range-checked.
 //!
 //! Paths in the file are relative to the working directory (run `rlpkg calibrate` from the repository
 //! root). Every error names the file, the key and what was expected.
@@ -271,7 +271,7 @@ out_dir = "runs/calibrate"
 trajectories = ["HHHHH", "HHLHL"]
 
 [sim]
-preset = "configs/reference.toml"
+preset = "configs/scenes/study.toml"
 between = 1
 max_seconds = 2.0
 hold_disc = true
@@ -323,9 +323,9 @@ upper = 2.0
     #[test]
     fn shipped_configs_are_valid() {
         let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
-        let first = CalibrateConfig::load(&configs.join("calibrate.toml")).unwrap();
-        let refine = CalibrateConfig::load(&configs.join("calibrate-refine.toml")).unwrap();
-        let whole = CalibrateConfig::load(&configs.join("calibrate-whole.toml")).unwrap();
+        let first = CalibrateConfig::load(&configs.join("calibrate/study.toml")).unwrap();
+        let refine = CalibrateConfig::load(&configs.join("calibrate/study-stage2.toml")).unwrap();
+        let whole = CalibrateConfig::load(&configs.join("calibrate/study-stage3.toml")).unwrap();
         // Each stage starts from the previous stage's output.
         assert_eq!(
             Path::new(&refine.sim.preset),
@@ -342,15 +342,15 @@ upper = 2.0
             ["disc_mass_scale", "k_con_e", "k_con_d", "mu_con"]
         );
         assert_eq!(whole.sim.max_seconds, None);
-        let shipped = rlpkg_sim::SceneConfig::load(&configs.join("calibrated.toml")).unwrap();
+        let shipped = rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-study.toml")).unwrap();
         assert!(shipped.disc.hold_at_recorded_start);
         assert_eq!(
             shipped.package.grid,
             [6 + 5 * first.sim.between, 7 + 6 * first.sim.between]
         );
         // The SI scene's second stage refines the first with the disc's orientation held.
-        let si = CalibrateConfig::load(&configs.join("calibrate-si.toml")).unwrap();
-        let si_refine = CalibrateConfig::load(&configs.join("calibrate-si-refine.toml")).unwrap();
+        let si = CalibrateConfig::load(&configs.join("calibrate/soft-film.toml")).unwrap();
+        let si_refine = CalibrateConfig::load(&configs.join("calibrate/soft-film-stage2.toml")).unwrap();
         assert_eq!(
             Path::new(&si_refine.sim.preset),
             si.out_dir.join("calibrated.toml")
@@ -359,7 +359,7 @@ upper = 2.0
         assert_eq!(si_refine.sim.hold_orientation, Some(true));
         // The stiff-film stage: the same parameters, membrane bounds that include real packaging
         // film (1e4-2e4 N/m), on a scene stepped finely enough to carry it.
-        let stiff = CalibrateConfig::load(&configs.join("calibrate-si-stiff.toml")).unwrap();
+        let stiff = CalibrateConfig::load(&configs.join("calibrate/real-film.toml")).unwrap();
         assert_eq!(si.space().names(), stiff.space().names());
         for spec in stiff
             .params
@@ -368,14 +368,14 @@ upper = 2.0
         {
             assert!(spec.lower <= 1.0e4 && spec.upper >= 2.0e4, "{}", spec.name);
         }
-        let scene = rlpkg_sim::SceneConfig::load(&configs.join("physical-stiff.toml")).unwrap();
+        let scene = rlpkg_sim::SceneConfig::load(&configs.join("scenes/physical-real-film.toml")).unwrap();
         assert_eq!(
             Path::new(&stiff.sim.preset),
-            Path::new("configs/physical-stiff.toml")
+            Path::new("configs/scenes/physical-real-film.toml")
         );
         assert!(scene.integrator.substep_rate_hz >= 1200.0);
         let fitted =
-            rlpkg_sim::SceneConfig::load(&configs.join("calibrated-si-stiff.toml")).unwrap();
+            rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-real-film.toml")).unwrap();
         assert_eq!(
             fitted.integrator.substep_rate_hz,
             scene.integrator.substep_rate_hz
@@ -384,14 +384,14 @@ upper = 2.0
         // The coarse real-film scene: the same parameters on the 11 x 13 grid at the real-film step,
         // starting from the fine fit, with every fitted value inside its bounds.
         let coarse =
-            CalibrateConfig::load(&configs.join("calibrate-coarse-si-stiff.toml")).unwrap();
+            CalibrateConfig::load(&configs.join("calibrate/coarse-real-film.toml")).unwrap();
         assert_eq!(si.space().names(), coarse.space().names());
         assert_eq!(
             Path::new(&coarse.sim.preset),
-            Path::new("configs/calibrated-si-stiff.toml")
+            Path::new("configs/scenes/calibrated-real-film.toml")
         );
         let coarse_fit =
-            rlpkg_sim::SceneConfig::load(&configs.join("calibrated-coarse-si-stiff.toml")).unwrap();
+            rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-coarse-real-film.toml")).unwrap();
         assert_eq!(
             coarse_fit.package.grid,
             [6 + 5 * coarse.sim.between, 7 + 6 * coarse.sim.between]

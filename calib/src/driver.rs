@@ -61,7 +61,7 @@ pub enum DriverError {
     },
 }
 
-/// Best parameters found, as written to `best.toml` (and shipped as `configs/calibrated.toml`).
+/// Best parameters found, as written to `best.toml` (and shipped as `configs/scenes/calibrated-study.toml`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibratedParams {

@@ -2,7 +2,7 @@
 //!
 //! Why not a crate: the calibration objective is noisy (contact-rich rollouts, and a user may evaluate
 //! a subset of trajectories), but egobox-ego models no observation noise and friedrich has only
-//! isotropic kernels. The issue asks for per-dimension length scales *and* a learned noise term, which
+//! isotropic kernels. The calibration needs per-dimension length scales *and* a learned noise term, which
 //! takes ~300 lines here.
 //!
 //! Model: inputs live in the unit cube (the [`crate::space::ParamSpace`] maps parameters there, on a

@@ -1,4 +1,4 @@
-//! Real-to-sim calibration for rlpkg (issue 4).
+//! Real-to-sim calibration for rlpkg.
 //!
 //! * [`gp`] — an exact Gaussian process (Matérn 5/2, ARD, learned noise) on nalgebra;
 //! * [`space`] — named parameters with bounds, log scale, unit-cube mapping;
@@ -6,7 +6,7 @@
 //! * [`evallog`] — the resumable CSV log of evaluations;
 //! * [`driver`] — the calibration loop (ask, evaluate, log, tell) and its output files;
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
-//! * [`config`] — `configs/calibrate.toml`;
+//! * [`config`] — `configs/calibrate/study.toml`;
 //!
 //! The replay set-up (scene, targets, batched rollouts), the structured loss ([`loss`]) and the
 //! evaluation helpers ([`evaluate`]) live in `rlpkg-replay`, which this crate builds on.

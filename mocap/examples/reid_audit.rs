@@ -3,7 +3,7 @@
 //! the cleaned markers stay to the recorded samples.
 //!
 //! ```sh
-//! cargo run --release -p rlpkg-mocap --example reid_audit -- configs/import.toml ../shared/data/packages-v1/*.csv.gz
+//! cargo run --release -p rlpkg-mocap --example reid_audit -- configs/import/motive.toml ../shared/data/packages-v1/*.csv.gz
 //! ```
 //!
 //! The sheet of each marker id is worked out from information the importer does not use: the tool

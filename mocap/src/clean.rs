@@ -169,7 +169,7 @@ pub fn assign(cost: &[f64], rows: usize, cols: usize, max_cost: f64) -> Vec<(usi
         .collect()
 }
 
-/// Cleaning parameters (`[cleaning]` in `configs/import.toml`); times in seconds, distances in m.
+/// Cleaning parameters (`[cleaning]` in `configs/import/motive.toml`); times in seconds, distances in m.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CleaningConfig {

@@ -2,7 +2,7 @@
 //! the package markers, clean them (see [`crate::clean`]), optionally trim to the motion, derive
 //! velocities and accelerations, and fill `meta.toml` and the manifest entry.
 //!
-//! Assumptions (all configurable in `configs/import.toml`): the tool is the first rigid body and the
+//! Assumptions (all configurable in `configs/import/motive.toml`): the tool is the first rigid body and the
 //! object the second; the suction-cup centre sits at a fixed offset in the tool's frame; the
 //! package markers are the unlabelled markers; package and object masses come from the config, and
 //! every take must be listed there (or a `[default_take]` given). With a robot trajectory file
@@ -173,7 +173,7 @@ pub struct TakeSettings {
     pub orientation: Option<String>,
 }
 
-/// The whole `configs/import.toml`.
+/// The whole `configs/import/motive.toml`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ImportConfig {
@@ -989,7 +989,7 @@ mod tests {
     }
 
     fn shipped_config() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/import.toml")
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/import/motive.toml")
     }
 
     /// Non-empty marker triples in the data rows, counted straight from the file's text.

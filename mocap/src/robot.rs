@@ -180,7 +180,7 @@ impl RigidTransform {
     }
 }
 
-/// `[robot]` of `configs/import.toml`: how a robot trajectory file maps into the mocap frame.
+/// `[robot]` of `configs/import/motive.toml`: how a robot trajectory file maps into the mocap frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RobotConfig {

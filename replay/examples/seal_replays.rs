@@ -4,7 +4,7 @@
 //! ```sh
 //! cargo run --release -p rlpkg-replay --example seal_replays -- [scene.toml] [grid RxC] [time scale] [seconds]
 //! ```
-//! Defaults: `configs/physical.toml`, its own grid, time scale 1 (2 plays each recording twice as
+//! Defaults: `configs/scenes/physical-explicit.toml`, its own grid, time scale 1 (2 plays each recording twice as
 //! fast), whole recordings. The scene's seal settings are used as they are.
 
 use std::path::Path;
@@ -16,7 +16,7 @@ use rlpkg_sim::{CupLoad, EpisodeSpec, Model, SceneConfig, Simulator, ToolSample,
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene_path = args.first().map_or("configs/physical.toml", |s| s.as_str());
+    let scene_path = args.first().map_or("configs/scenes/physical-explicit.toml", |s| s.as_str());
     let mut scene = SceneConfig::load(Path::new(scene_path))?;
     if let Some(grid) = args.get(1) {
         let (r, c) = grid.split_once('x').ok_or("grid: expected RxC")?;

@@ -339,7 +339,7 @@ mod tests {
         // fall on one substep, and each of them must still be compared.
         let root = concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../configs/physical-implicit.toml"
+            "/../configs/scenes/physical-soft-film.toml"
         );
         let mut scene = load_scene(root, Some(0), Some(0.01)).unwrap();
         scene.cups.rest_time_s = 0.1;

@@ -1,4 +1,4 @@
-//! Scene configuration: the TOML presets under `configs/` (`reference.toml`, `physical.toml`),
+//! Scene configuration: the TOML presets under `configs/` (`scenes/study.toml` as `reference`, `scenes/physical-explicit.toml` as `physical`),
 //! loaded with serde (`deny_unknown_fields`) and range-checked with errors naming file, key and
 //! expected range. Units are SI throughout.
 
@@ -8,10 +8,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::SimError;
 
-/// Text of `configs/reference.toml`, embedded at build time.
-pub const REFERENCE_TOML: &str = include_str!("../../configs/reference.toml");
-/// Text of `configs/physical.toml`, embedded at build time.
-pub const PHYSICAL_TOML: &str = include_str!("../../configs/physical.toml");
+/// Text of `configs/scenes/study.toml`, embedded at build time.
+pub const REFERENCE_TOML: &str = include_str!("../../configs/scenes/study.toml");
+/// Text of `configs/scenes/physical-explicit.toml`, embedded at build time.
+pub const PHYSICAL_TOML: &str = include_str!("../../configs/scenes/physical-explicit.toml");
 
 /// The names of the material parameters, in [`Params::entries`] order.
 pub const PARAM_NAMES: [&str; 14] = [
@@ -233,7 +233,7 @@ pub struct DiscConfig {
     /// tilted, its rim cuts through the flat package's film) and keeps a level one from turning
     /// into the film while its centre is held (on the coarse SI scene: no disc lost in 300
     /// randomised scripted transports, against 4.3 % with a free rotation). False: the rotation is
-    /// free throughout the hold (as `configs/calibrated.toml` was fitted).
+    /// free throughout the hold (as `configs/scenes/calibrated-study.toml` was fitted).
     #[serde(default)]
     pub hold_orientation: bool,
 }
@@ -468,8 +468,8 @@ impl SceneConfig {
     /// One of the embedded presets: `reference` or `physical`.
     pub fn preset(name: &str) -> Result<Self, SimError> {
         match name {
-            "reference" => Self::from_toml_str(REFERENCE_TOML, "configs/reference.toml"),
-            "physical" => Self::from_toml_str(PHYSICAL_TOML, "configs/physical.toml"),
+            "reference" => Self::from_toml_str(REFERENCE_TOML, "configs/scenes/study.toml"),
+            "physical" => Self::from_toml_str(PHYSICAL_TOML, "configs/scenes/physical-explicit.toml"),
             other => Err(SimError::UnknownPreset(other.to_string())),
         }
     }

@@ -5,7 +5,7 @@
 //! * [`Model`]: topology and rest data shared by every environment: package particles (two
 //!   M x N layers joined by a perimeter seam band), membrane triangles with rest `Dm`, interior
 //!   bending edges with rest angles, cup rings, the disc's shape. Built from a [`SceneConfig`]
-//!   (`configs/reference.toml` or `configs/physical.toml`, or [`SceneConfig::preset`]).
+//!   (`configs/scenes/study.toml` or `configs/scenes/physical-explicit.toml`, or [`SceneConfig::preset`]).
 //! * [`EpisodeSpec`]: what differs per environment: [`Placement`] (package origin, tool cup point,
 //!   disc position), material [`Params`], object mass, tool trajectory.
 //! * [`Simulator`]: the batched state (positions/velocities of every particle and the disc of

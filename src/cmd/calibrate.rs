@@ -42,7 +42,7 @@ pub struct CalibrateArgs {
     /// Start over: delete the output folder's previous evaluations instead of resuming.
     #[arg(long)]
     pub fresh: bool,
-    /// Also write the calibrated scene here (e.g. configs/calibrated.toml).
+    /// Also write the calibrated scene here (e.g. configs/scenes/calibrated-study.toml).
     #[arg(long, value_name = "FILE")]
     pub write_params: Option<PathBuf>,
 }

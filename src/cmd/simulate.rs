@@ -47,7 +47,7 @@ pub struct SimulateArgs {
     /// Trajectory folder with tool.csv, object.csv, markers.csv and meta.toml
     /// (e.g. data/deformable-sim-real/HHMMM).
     pub trajectory: PathBuf,
-    /// Scene config TOML [default: the built-in reference preset, configs/reference.toml].
+    /// Scene config TOML [default: the built-in reference preset, configs/scenes/study.toml].
     #[arg(long, value_name = "FILE")]
     pub params: Option<PathBuf>,
     /// Package vertices per layer, ROWSxCOLS (rows along the short side), e.g. 11x13.
@@ -228,7 +228,7 @@ fn scene_config(args: &SimulateArgs) -> anyhow::Result<(SceneConfig, String)> {
         ),
         None => (
             SceneConfig::preset("reference").map_err(input_error)?,
-            "built-in reference preset (configs/reference.toml)".to_string(),
+            "built-in reference preset (configs/scenes/study.toml)".to_string(),
         ),
     };
     let grid = match (args.grid, args.between) {

@@ -14,7 +14,7 @@ use crate::error::input_error;
 
 #[derive(Args)]
 #[command(
-    after_help = "Examples:\n  rlpkg train configs/cartpole.toml\n  rlpkg train configs/pendulum.toml \
+    after_help = "Examples:\n  rlpkg train configs/train/cartpole.toml\n  rlpkg train configs/train/pendulum.toml \
                         --name pendulum-seed2\n  rlpkg train --resume runs/cartpole"
 )]
 pub struct TrainArgs {
@@ -146,7 +146,7 @@ fn parse_run_name(name: &str) -> Result<String, String> {
     }
 }
 
-/// The config file's stem, e.g. `cartpole` for `configs/cartpole.toml`.
+/// The config file's stem, e.g. `cartpole` for `configs/train/cartpole.toml`.
 fn default_name(config_path: &Path) -> anyhow::Result<String> {
     config_path
         .file_stem()

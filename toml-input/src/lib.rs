@@ -1,4 +1,4 @@
-//! Reading the TOML files of rlpkg (scene presets, configurations, `configs/import.toml`,
+//! Reading the TOML files of rlpkg (scene presets, configurations, `configs/import/motive.toml`,
 //! `manifest.toml`, `meta.toml`): fixed-length arrays that must have exactly their length, and
 //! parse errors that name the line and the key. Shared by the simulator and the motion-capture
 //! crate, which do not depend on each other.

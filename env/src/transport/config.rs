@@ -1,4 +1,4 @@
-//! The `[transport]` table of a training configuration (`configs/transport.toml`): scene, paths
+//! The `[transport]` table of a training configuration (`configs/train/transport.toml`): scene, paths
 //! from the recordings, control rate, limits, success tolerances, reward weights and domain
 //! randomisation. Every key is required unless said otherwise; unknown keys and out-of-range
 //! values are rejected with the file, the key and what was expected.
@@ -13,7 +13,7 @@ use crate::EnvError;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TransportConfig {
-    /// Scene file (e.g. `configs/physical.toml`) or preset name (`physical`); needs SI masses
+    /// Scene file (e.g. `configs/scenes/physical-explicit.toml`) or preset name (`physical`); needs SI masses
     /// and the seal model on.
     pub scene: String,
     /// Package grid `[rows, columns]` (overrides the scene's; coarse grids train faster).

@@ -328,7 +328,7 @@ pub fn load_scene(config: &TransportConfig, source: &str) -> Result<SceneConfig,
             key: "transport.scene".into(),
             value: config.scene.clone(),
             expected: "a scene with SI masses and the seal model on ([seal] enabled = true), \
-                       e.g. configs/physical.toml"
+                       e.g. configs/scenes/physical-explicit.toml"
                 .into(),
         });
     }
