@@ -291,7 +291,8 @@ fn default_iterations() -> u32 {
     10
 }
 
-/// The integrators behind [`IntegratorConfig::solver`], one interface (`Simulator::step`).
+/// The solvers behind [`IntegratorConfig::solver`] (one folder each in `sim/src/solvers/`, one
+/// interface).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Solver {
@@ -469,7 +470,9 @@ impl SceneConfig {
     pub fn preset(name: &str) -> Result<Self, SimError> {
         match name {
             "reference" => Self::from_toml_str(REFERENCE_TOML, "configs/scenes/study.toml"),
-            "physical" => Self::from_toml_str(PHYSICAL_TOML, "configs/scenes/physical-explicit.toml"),
+            "physical" => {
+                Self::from_toml_str(PHYSICAL_TOML, "configs/scenes/physical-explicit.toml")
+            }
             other => Err(SimError::UnknownPreset(other.to_string())),
         }
     }

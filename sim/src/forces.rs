@@ -3,6 +3,11 @@
 //!
 //! Every function returns the forces *on* the element's particles (Warp's `atomic_add`/`atomic_sub`
 //! signs already applied). Deliberate differences from Warp are listed where they occur.
+//!
+//! Both solvers build on these laws: the explicit one sums them per particle, block descent
+//! differentiates them per vertex (`solvers::block_descent::vertex`). What both share (the
+//! bending element, [`ContactMaterial`], the disc's shape) lives here, so the solvers depend on
+//! this module and never on each other.
 
 use crate::math::{Real, V3};
 
@@ -136,8 +141,59 @@ pub fn dihedral_angle<T: Real>(x: [V3<T>; 4]) -> T {
 /// in lanes where a wing is degenerate (|n| < 1e-6, Warp returns early there).
 #[inline(always)]
 pub fn bending<T: Real>(x: [V3<T>; 4], v: [V3<T>; 4], rest_angle: T, ke: T, kd: T) -> [V3<T>; 4] {
-    // The same arithmetic as the block-descent integrator's element, without its stiffness.
-    crate::implicit::bending_element(x, v, rest_angle, ke, kd, T::splat(0.0)).0
+    // The same arithmetic as the block-descent solver's element, without its stiffness.
+    bending_element(x, v, rest_angle, ke, kd, T::splat(0.0)).0
+}
+
+/// Dihedral bending (Warp's `eval_bending`) of element positions `x`, velocities `v`, for both
+/// solvers: the forces on its four vertices (opposite vertices, then the hinge) and the gradients
+/// `∇θ` they are along, with the Gauss-Newton stiffness factor `s`: vertex k's stiffness block is
+/// `s·∇θ_k∇θ_kᵀ` with `s = |e|·(ke + kd/h)` (the explicit solver passes `1/h = 0` and uses only
+/// the forces, see [`bending`]).
+#[inline(always)]
+pub fn bending_element<T: Real>(
+    x: [V3<T>; 4],
+    v: [V3<T>; 4],
+    rest_angle: T,
+    ke: T,
+    kd: T,
+    inv_h: T,
+) -> ([V3<T>; 4], [V3<T>; 4], T) {
+    let one = T::splat(1.0);
+    let eps = T::splat(1.0e-6);
+    let n1 = (x[2] - x[0]).cross(x[3] - x[0]);
+    let n2 = (x[3] - x[1]).cross(x[2] - x[1]);
+    let (l1, l2) = (n1.length(), n2.length());
+    let ok = l1.min(l2);
+    let l1 = T::select_lt(l1, eps, one, l1);
+    let l2 = T::select_lt(l2, eps, one, l2);
+    let rcp1 = one / l1;
+    let rcp2 = one / l2;
+    let cos = n1.dot(n2) * rcp1 * rcp2;
+    let n1 = n1 * rcp1 * rcp1;
+    let n2 = n2 * rcp2 * rcp2;
+    let e = x[3] - x[2];
+    let e_hat = e.normalize();
+    let e_len = e.length();
+    let s = n2.cross(n1).dot(e_hat).sign();
+    let angle = cos.acos_clamped() * s;
+    let d = [
+        n1 * e_len,
+        n2 * e_len,
+        n1 * (x[0] - x[3]).dot(e_hat) + n2 * (x[1] - x[3]).dot(e_hat),
+        n1 * (x[2] - x[0]).dot(e_hat) + n2 * (x[2] - x[1]).dot(e_hat),
+    ];
+    let rate = d[0].dot(v[0]) + d[1].dot(v[1]) + d[2].dot(v[2]) + d[3].dot(v[3]);
+    let f_total = -e_len * (ke * (angle - rest_angle) + kd * rate);
+    let f_total = T::select_lt(ok, eps, T::splat(0.0), f_total);
+    let stiffness = T::select_lt(ok, eps, T::splat(0.0), e_len * (ke + kd * inv_h));
+    let forces = [
+        d[0] * f_total,
+        d[1] * f_total,
+        d[2] * f_total,
+        d[3] * f_total,
+    ];
+    (forces, d, stiffness)
 }
 
 /// Contact material: stiffness, damping, friction stiffness, friction coefficient.

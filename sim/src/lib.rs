@@ -1,17 +1,26 @@
 //! Batched simulator of a two-layer deformable package lifted by suction cups, with a rigid disc
-//! inside, using NVIDIA Warp 1.6 `warp.sim`'s force model and semi-implicit Euler integrator.
+//! inside, using NVIDIA Warp 1.6 `warp.sim`'s force model, integrated by Warp's semi-implicit
+//! Euler or by implicit Euler solved with Vertex Block Descent.
 //!
 //! # Structure (Warp's split)
 //! * [`Model`]: topology and rest data shared by every environment: package particles (two
 //!   M x N layers joined by a perimeter seam band), membrane triangles with rest `Dm`, interior
 //!   bending edges with rest angles, cup rings, the disc's shape. Built from a [`SceneConfig`]
 //!   (`configs/scenes/study.toml` or `configs/scenes/physical-explicit.toml`, or [`SceneConfig::preset`]).
-//! * [`EpisodeSpec`]: what differs per environment: [`Placement`] (package origin, tool cup point,
-//!   disc position), material [`Params`], object mass, tool trajectory.
-//! * [`Simulator`]: the batched state (positions/velocities of every particle and the disc of
-//!   every environment, struct-of-arrays in blocks of [`LANES`] environments, see the `block`
-//!   module) plus the semi-implicit Euler integrator that steps it; rayon across blocks.
-//!
+//! * [`EpisodeSpec`] ([`episode`]): what differs per environment: [`Placement`] (package origin,
+//!   tool cup point, disc position), material [`Params`], object mass, tool trajectory; and what
+//!   an environment reports ([`DiscState`], [`EnvObservation`], [`CupLoad`], events).
+//! * The state (`state`): positions/velocities of every particle, the disc's pose and twist, the
+//!   cups' seals and each environment's clock, struct-of-arrays in blocks of [`LANES`]
+//!   environments, plus what each lane's episode prescribes (parameters, tool drive).
+//! * The force laws ([`forces`]): one function per force term, one element at a time, shared by
+//!   the solvers.
+//! * The solvers (`solvers`, one folder each, behind one interface; the scene's
+//!   `integrator.solver` picks one, see [`Solver`]): each maps a block's state to the next
+//!   substep.
+//! * [`Simulator`]: the batch (model, specs, state blocks, the chosen solver) and the calls to
+//!   step, control and read it; rayon across blocks.
+
 //! # Typical use
 //! ```
 //! use std::sync::Arc;
@@ -81,34 +90,30 @@
 #![warn(missing_docs)]
 
 pub mod bench;
-mod block;
 pub mod config;
+mod constants;
 pub mod embed;
+pub mod episode;
 pub mod error;
 pub mod forces;
-pub mod implicit;
 pub mod math;
 pub mod model;
 pub mod randomize;
-mod sim;
-pub mod state;
+mod simulator;
+mod solvers;
+mod state;
 pub mod tool;
 pub mod trajectory;
 
-#[cfg(test)]
-mod control_tests;
-#[cfg(test)]
-mod descent_tests;
-
 pub use config::{DriveMode, InertiaModel, Params, SceneConfig, SealConfig, Solver, ToolLimits};
 pub use embed::{EmbeddedPoint, SurfaceEmbedding};
-pub use error::SimError;
-pub use model::{DiscMass, Model};
-pub use randomize::Randomization;
-pub use sim::{EnvSnapshot, Simulator, LANES};
-pub use state::{
+pub use episode::{
     CupLoad, DiscState, EnvObservation, EpisodeSpec, HealthEvent, HealthReason, NoSealReason,
     Placement, SealEvent, SealEventKind,
 };
+pub use error::SimError;
+pub use model::{marker_grid_points, DiscMass, Model};
+pub use randomize::Randomization;
+pub use simulator::{EnvSnapshot, Simulator, LANES};
 pub use tool::{ToolCommand, ToolCommandReport, ToolState};
 pub use trajectory::{ToolPose, ToolSample, ToolTrajectory};

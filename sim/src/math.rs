@@ -1,6 +1,7 @@
 //! Numeric types shared by the force laws: a [`Real`] trait implemented for `f32`, `f64` (tests,
-//! finite differences) and [`Lanes`] (W environments side by side), plus small 3-vector and
-//! quaternion types generic over it.
+//! finite differences) and [`Lanes`] (W environments side by side), plus small 3-vector,
+//! quaternion and symmetric 3×3 matrix ([`Sym3`], the solvers' stiffness blocks) types generic
+//! over it.
 //!
 //! Every force law is written once, generically; on [`Lanes`] each arithmetic operation is a
 //! fixed-length loop over the W lanes that the compiler turns into one SIMD instruction. Lanes never
@@ -360,6 +361,154 @@ impl<T: Real> Quat<T> {
     }
 }
 
+/// Lane `l` of a 3-vector of lanes.
+#[inline(always)]
+pub(crate) fn get3<const W: usize>(v: &V3<Lanes<W>>, l: usize) -> [f32; 3] {
+    [v.x.0[l], v.y.0[l], v.z.0[l]]
+}
+
+/// Sets lane `l` of a 3-vector of lanes.
+#[inline(always)]
+pub(crate) fn set3<const W: usize>(v: &mut V3<Lanes<W>>, l: usize, a: [f32; 3]) {
+    v.x.0[l] = a[0];
+    v.y.0[l] = a[1];
+    v.z.0[l] = a[2];
+}
+
+/// A symmetric 3×3 matrix.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sym3<T> {
+    /// Entries xx, xy, xz, yy, yz, zz.
+    pub m: [T; 6],
+}
+
+impl<T: Real> Sym3<T> {
+    /// The zero matrix.
+    #[inline(always)]
+    pub fn zero() -> Self {
+        Sym3 {
+            m: [T::splat(0.0); 6],
+        }
+    }
+    /// `d·I`.
+    #[inline(always)]
+    pub fn diagonal(d: T) -> Self {
+        let z = T::splat(0.0);
+        Sym3 {
+            m: [d, z, z, d, z, d],
+        }
+    }
+    /// `s·a·aᵀ`.
+    #[inline(always)]
+    pub fn outer(a: V3<T>, s: T) -> Self {
+        let (x, y, z) = (a.x * s, a.y * s, a.z * s);
+        Sym3 {
+            m: [x * a.x, x * a.y, x * a.z, y * a.y, y * a.z, z * a.z],
+        }
+    }
+    /// `s·(I − n·nᵀ)`: the projection onto the plane normal to the unit vector `n`, scaled.
+    #[inline(always)]
+    pub fn tangential(n: V3<T>, s: T) -> Self {
+        let mut p = Self::diagonal(s);
+        p.sub_assign(Self::outer(n, s));
+        p
+    }
+    /// `self += o`.
+    #[inline(always)]
+    pub fn add_assign(&mut self, o: Self) {
+        for (a, b) in self.m.iter_mut().zip(o.m) {
+            *a += b;
+        }
+    }
+    /// `self −= o`.
+    #[inline(always)]
+    pub fn sub_assign(&mut self, o: Self) {
+        for (a, b) in self.m.iter_mut().zip(o.m) {
+            *a -= b;
+        }
+    }
+    /// `self + o`.
+    #[inline(always)]
+    pub fn plus(mut self, o: Self) -> Self {
+        self.add_assign(o);
+        self
+    }
+    /// Per lane: `if a < b { yes } else { no }`.
+    #[inline(always)]
+    pub fn select_lt(a: T, b: T, yes: Self, no: Self) -> Self {
+        let (y, n) = (yes.m, no.m);
+        Sym3 {
+            m: [
+                T::select_lt(a, b, y[0], n[0]),
+                T::select_lt(a, b, y[1], n[1]),
+                T::select_lt(a, b, y[2], n[2]),
+                T::select_lt(a, b, y[3], n[3]),
+                T::select_lt(a, b, y[4], n[4]),
+                T::select_lt(a, b, y[5], n[5]),
+            ],
+        }
+    }
+    /// `self·s`.
+    #[inline(always)]
+    pub fn scale(self, s: T) -> Self {
+        Sym3 {
+            m: [
+                self.m[0] * s,
+                self.m[1] * s,
+                self.m[2] * s,
+                self.m[3] * s,
+                self.m[4] * s,
+                self.m[5] * s,
+            ],
+        }
+    }
+    /// Keeps `self` in lanes where `a < b`, zero elsewhere.
+    #[inline(always)]
+    pub fn keep_lt(self, a: T, b: T) -> Self {
+        let z = T::splat(0.0);
+        let m = self.m;
+        Sym3 {
+            m: [
+                T::select_lt(a, b, m[0], z),
+                T::select_lt(a, b, m[1], z),
+                T::select_lt(a, b, m[2], z),
+                T::select_lt(a, b, m[3], z),
+                T::select_lt(a, b, m[4], z),
+                T::select_lt(a, b, m[5], z),
+            ],
+        }
+    }
+    /// `self·v`.
+    #[inline(always)]
+    pub fn mul_vec(&self, v: V3<T>) -> V3<T> {
+        let [xx, xy, xz, yy, yz, zz] = self.m;
+        V3::new(
+            xx * v.x + xy * v.y + xz * v.z,
+            xy * v.x + yy * v.y + yz * v.z,
+            xz * v.x + yz * v.y + zz * v.z,
+        )
+    }
+    /// Solves `self·u = b` by the adjugate (the matrix is positive definite: the inertia term
+    /// alone makes it so).
+    #[inline(always)]
+    pub fn solve(&self, b: V3<T>) -> V3<T> {
+        let [xx, xy, xz, yy, yz, zz] = self.m;
+        let c_xx = yy * zz - yz * yz;
+        let c_xy = xz * yz - xy * zz;
+        let c_xz = xy * yz - xz * yy;
+        let c_yy = xx * zz - xz * xz;
+        let c_yz = xy * xz - xx * yz;
+        let c_zz = xx * yy - xy * xy;
+        let det = xx * c_xx + xy * c_xy + xz * c_xz;
+        let inv = T::splat(1.0) / det;
+        V3::new(
+            (c_xx * b.x + c_xy * b.y + c_xz * b.z) * inv,
+            (c_xy * b.x + c_yy * b.y + c_yz * b.z) * inv,
+            (c_xz * b.x + c_yz * b.y + c_zz * b.z) * inv,
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -401,5 +550,14 @@ mod tests {
         let qq = q.compose(q).normalize();
         let r2 = qq.rotate(V3::new(0.0f32, 1.0, 0.0));
         assert!((r2.y + 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn sym3_solve_inverts_the_matrix() {
+        let mut a = Sym3::diagonal(2.0f64);
+        a.add_assign(Sym3::outer(V3::new(1.0, 2.0, -1.0), 3.0));
+        let b = V3::new(0.5, -1.0, 2.0);
+        let u = a.solve(b);
+        assert!((a.mul_vec(u) - b).length() <= 1e-12 * b.length());
     }
 }

@@ -12,6 +12,27 @@ use crate::config::{InertiaModel, SceneConfig};
 use crate::error::SimError;
 use crate::forces::TriangleRest;
 
+/// Pitch of the real marker grid (2 inches, m).
+pub const MARKER_PITCH_M: f32 = 0.0508;
+
+/// The reference's 42 "sampled grid points" (its loss points): the nominal 6 x 7 marker grid,
+/// row-major with rows along the package's short side (world z) and columns along its long side
+/// (x), [`MARKER_PITCH_M`] apart, starting at `package_origin` and at its height. On a grid of
+/// [6 + 5p, 7 + 6p] vertices they lie on the upper sheet's vertices at rest (every (p + 1)-th);
+/// on any grid they can be embedded in the sheet ([`crate::Simulator::embed`]).
+pub fn marker_grid_points(package_origin: [f32; 3]) -> Vec<[f32; 3]> {
+    (0..42)
+        .map(|m| {
+            let (row, col) = (m / 7, m % 7);
+            [
+                package_origin[0] + col as f32 * MARKER_PITCH_M,
+                package_origin[1],
+                package_origin[2] + row as f32 * MARKER_PITCH_M,
+            ]
+        })
+        .collect()
+}
+
 /// A membrane triangle: particle indices and rest data.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Triangle {
@@ -379,19 +400,6 @@ impl Model {
         self.layer_size + row * self.grid[1] + col
     }
 
-    /// The reference's 42 "sampled grid points" for a 6 x 7 marker grid with `p` particles in
-    /// between (requires grid = [6 + 5p, 7 + 6p]): upper-sheet indices in marker order.
-    pub fn marker_grid_particles(&self, p: usize) -> Option<Vec<usize>> {
-        if self.grid != [6 + 5 * p, 7 + 6 * p] {
-            return None;
-        }
-        Some(
-            (0..42)
-                .map(|m| self.upper_sheet_particle((m / 7) * (1 + p), (m % 7) * (1 + p)))
-                .collect(),
-        )
-    }
-
     /// Number of cups.
     pub fn num_cups(&self) -> usize {
         self.num_cup / self.cup_size
@@ -478,11 +486,14 @@ mod tests {
         let lower = m.rest_offsets[0];
         let upper = m.rest_offsets[m.upper_sheet_particle(0, 0)];
         assert!(upper[1] > lower[1]);
-        let marks = m.marker_grid_particles(3).unwrap();
+        // Grid [21, 25] = [6 + 5p, 7 + 6p] with p = 3: every 4th upper-sheet vertex is a marker.
+        let marks = marker_grid_points([0.0; 3]);
         assert_eq!(marks.len(), 42);
-        let last = m.rest_offsets[marks[41]];
-        assert!((last[0] - 0.3048).abs() < 1e-5 && (last[2] - 0.254).abs() < 1e-5);
-        assert!(m.marker_grid_particles(2).is_none());
+        for (k, mark) in marks.iter().enumerate() {
+            let vertex = m.rest_offsets[m.upper_sheet_particle((k / 7) * 4, (k % 7) * 4)];
+            assert!((mark[0] - vertex[0]).abs() < 1e-5 && (mark[2] - vertex[2]).abs() < 1e-5);
+        }
+        assert!((marks[41][0] - 0.3048).abs() < 1e-6 && (marks[41][2] - 0.254).abs() < 1e-6);
     }
 
     #[test]

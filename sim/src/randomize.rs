@@ -10,8 +10,8 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::config::PARAM_NAMES;
+use crate::episode::EpisodeSpec;
 use crate::error::SimError;
-use crate::state::EpisodeSpec;
 
 /// Ranges to draw from; every range is `[low, high]` and drawn uniformly unless said otherwise.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -1,5 +1,7 @@
-//! Per-environment inputs ([`EpisodeSpec`], [`Placement`]) and outputs ([`DiscState`],
-//! [`HealthEvent`]) of the batched simulator.
+//! What one environment's episode is given and what it reports: its inputs ([`EpisodeSpec`],
+//! [`Placement`]) and its outputs ([`DiscState`], [`EnvObservation`], [`CupLoad`],
+//! [`HealthEvent`], [`SealEvent`]). The evolving state of the environments is not here: it lives
+//! in the simulator's blocks (`state::State`), struct-of-arrays across environments.
 
 use std::sync::Arc;
 

@@ -1,6 +1,7 @@
-//! Per-vertex force and stiffness of every force term, for the block-descent integrator
-//! ([`crate::config::Solver::BlockDescent`]): implicit Euler solved by a Newton step on one vertex
-//! at a time (Vertex Block Descent, Chen et al. 2024), Gauss-Seidel over the vertices.
+//! Per-vertex force and stiffness of every force term, for the block-descent solver: implicit
+//! Euler solved by a Newton step on one vertex at a time (Vertex Block Descent, Chen et al. 2024),
+//! Gauss-Seidel over the vertices. Bending's per-element terms are shared with the explicit
+//! solver ([`crate::forces::bending_element`]).
 //!
 //! Each function returns the force on one vertex of an element (the negative gradient of the
 //! element's energy, with the same force laws as [`crate::forces`]) and its stiffness block
@@ -15,141 +16,7 @@
 //! (Warp's `Ḟ` damping brakes any spin of the package).
 
 use crate::forces::ContactMaterial;
-use crate::math::{Real, V3};
-
-/// A symmetric 3×3 matrix.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Sym3<T> {
-    /// Entries xx, xy, xz, yy, yz, zz.
-    pub m: [T; 6],
-}
-
-impl<T: Real> Sym3<T> {
-    /// The zero matrix.
-    #[inline(always)]
-    pub fn zero() -> Self {
-        Sym3 {
-            m: [T::splat(0.0); 6],
-        }
-    }
-    /// `d·I`.
-    #[inline(always)]
-    pub fn diagonal(d: T) -> Self {
-        let z = T::splat(0.0);
-        Sym3 {
-            m: [d, z, z, d, z, d],
-        }
-    }
-    /// `s·a·aᵀ`.
-    #[inline(always)]
-    pub fn outer(a: V3<T>, s: T) -> Self {
-        let (x, y, z) = (a.x * s, a.y * s, a.z * s);
-        Sym3 {
-            m: [x * a.x, x * a.y, x * a.z, y * a.y, y * a.z, z * a.z],
-        }
-    }
-    /// `s·(I − n·nᵀ)`: the projection onto the plane normal to the unit vector `n`, scaled.
-    #[inline(always)]
-    pub fn tangential(n: V3<T>, s: T) -> Self {
-        let mut p = Self::diagonal(s);
-        p.sub_assign(Self::outer(n, s));
-        p
-    }
-    /// `self += o`.
-    #[inline(always)]
-    pub fn add_assign(&mut self, o: Self) {
-        for (a, b) in self.m.iter_mut().zip(o.m) {
-            *a += b;
-        }
-    }
-    /// `self −= o`.
-    #[inline(always)]
-    pub fn sub_assign(&mut self, o: Self) {
-        for (a, b) in self.m.iter_mut().zip(o.m) {
-            *a -= b;
-        }
-    }
-    /// `self + o`.
-    #[inline(always)]
-    pub fn plus(mut self, o: Self) -> Self {
-        self.add_assign(o);
-        self
-    }
-    /// Per lane: `if a < b { yes } else { no }`.
-    #[inline(always)]
-    pub fn select_lt(a: T, b: T, yes: Self, no: Self) -> Self {
-        let (y, n) = (yes.m, no.m);
-        Sym3 {
-            m: [
-                T::select_lt(a, b, y[0], n[0]),
-                T::select_lt(a, b, y[1], n[1]),
-                T::select_lt(a, b, y[2], n[2]),
-                T::select_lt(a, b, y[3], n[3]),
-                T::select_lt(a, b, y[4], n[4]),
-                T::select_lt(a, b, y[5], n[5]),
-            ],
-        }
-    }
-    /// `self·s`.
-    #[inline(always)]
-    pub fn scale(self, s: T) -> Self {
-        Sym3 {
-            m: [
-                self.m[0] * s,
-                self.m[1] * s,
-                self.m[2] * s,
-                self.m[3] * s,
-                self.m[4] * s,
-                self.m[5] * s,
-            ],
-        }
-    }
-    /// Keeps `self` in lanes where `a < b`, zero elsewhere.
-    #[inline(always)]
-    pub fn keep_lt(self, a: T, b: T) -> Self {
-        let z = T::splat(0.0);
-        let m = self.m;
-        Sym3 {
-            m: [
-                T::select_lt(a, b, m[0], z),
-                T::select_lt(a, b, m[1], z),
-                T::select_lt(a, b, m[2], z),
-                T::select_lt(a, b, m[3], z),
-                T::select_lt(a, b, m[4], z),
-                T::select_lt(a, b, m[5], z),
-            ],
-        }
-    }
-    /// `self·v`.
-    #[inline(always)]
-    pub fn mul_vec(&self, v: V3<T>) -> V3<T> {
-        let [xx, xy, xz, yy, yz, zz] = self.m;
-        V3::new(
-            xx * v.x + xy * v.y + xz * v.z,
-            xy * v.x + yy * v.y + yz * v.z,
-            xz * v.x + yz * v.y + zz * v.z,
-        )
-    }
-    /// Solves `self·u = b` by the adjugate (the matrix is positive definite: the inertia term
-    /// alone makes it so).
-    #[inline(always)]
-    pub fn solve(&self, b: V3<T>) -> V3<T> {
-        let [xx, xy, xz, yy, yz, zz] = self.m;
-        let c_xx = yy * zz - yz * yz;
-        let c_xy = xz * yz - xy * zz;
-        let c_xz = xy * yz - xz * yy;
-        let c_yy = xx * zz - xz * xz;
-        let c_yz = xy * xz - xx * yz;
-        let c_zz = xx * yy - xy * xy;
-        let det = xx * c_xx + xy * c_xy + xz * c_xz;
-        let inv = T::splat(1.0) / det;
-        V3::new(
-            (c_xx * b.x + c_xy * b.y + c_xz * b.z) * inv,
-            (c_xy * b.x + c_yy * b.y + c_yz * b.z) * inv,
-            (c_xz * b.x + c_yz * b.y + c_zz * b.z) * inv,
-        )
-    }
-}
+use crate::math::{Real, Sym3, V3};
 
 /// Which corner of a triangle the vertex being solved is: one corner for every lane (`usize`), or
 /// one per lane ([`LaneCorners`]). Both give the same arithmetic per lane.
@@ -301,72 +168,6 @@ pub fn triangle_vertex<T: Real>(
     (-grad, k)
 }
 
-/// Dihedral bending (Warp's `eval_bending`) of element positions `x`, velocities `v`: the forces
-/// on its four vertices (opposite vertices, then the hinge) and the gradients `∇θ` they are
-/// along, with the Gauss-Newton stiffness factor `s`: vertex k's stiffness block is
-/// `s·∇θ_k∇θ_kᵀ` with `s = |e|·(ke + kd/h)`.
-#[inline(always)]
-pub fn bending_element<T: Real>(
-    x: [V3<T>; 4],
-    v: [V3<T>; 4],
-    rest_angle: T,
-    ke: T,
-    kd: T,
-    inv_h: T,
-) -> ([V3<T>; 4], [V3<T>; 4], T) {
-    let one = T::splat(1.0);
-    let eps = T::splat(1.0e-6);
-    let n1 = (x[2] - x[0]).cross(x[3] - x[0]);
-    let n2 = (x[3] - x[1]).cross(x[2] - x[1]);
-    let (l1, l2) = (n1.length(), n2.length());
-    let ok = l1.min(l2);
-    let l1 = T::select_lt(l1, eps, one, l1);
-    let l2 = T::select_lt(l2, eps, one, l2);
-    let rcp1 = one / l1;
-    let rcp2 = one / l2;
-    let cos = n1.dot(n2) * rcp1 * rcp2;
-    let n1 = n1 * rcp1 * rcp1;
-    let n2 = n2 * rcp2 * rcp2;
-    let e = x[3] - x[2];
-    let e_hat = e.normalize();
-    let e_len = e.length();
-    let s = n2.cross(n1).dot(e_hat).sign();
-    let angle = cos.acos_clamped() * s;
-    let d = [
-        n1 * e_len,
-        n2 * e_len,
-        n1 * (x[0] - x[3]).dot(e_hat) + n2 * (x[1] - x[3]).dot(e_hat),
-        n1 * (x[2] - x[0]).dot(e_hat) + n2 * (x[2] - x[1]).dot(e_hat),
-    ];
-    let rate = d[0].dot(v[0]) + d[1].dot(v[1]) + d[2].dot(v[2]) + d[3].dot(v[3]);
-    let f_total = -e_len * (ke * (angle - rest_angle) + kd * rate);
-    let f_total = T::select_lt(ok, eps, T::splat(0.0), f_total);
-    let stiffness = T::select_lt(ok, eps, T::splat(0.0), e_len * (ke + kd * inv_h));
-    let forces = [
-        d[0] * f_total,
-        d[1] * f_total,
-        d[2] * f_total,
-        d[3] * f_total,
-    ];
-    (forces, d, stiffness)
-}
-
-/// [`bending_element`] at one vertex (`role` 0, 1: opposite vertices; 2, 3: hinge): its force
-/// and stiffness block `|e|·(ke + kd/h)·∇θ∇θᵀ` (Gauss-Newton).
-#[inline(always)]
-pub fn bending_vertex<T: Real>(
-    x: [V3<T>; 4],
-    v: [V3<T>; 4],
-    role: usize,
-    rest_angle: T,
-    ke: T,
-    kd: T,
-    inv_h: T,
-) -> (V3<T>, Sym3<T>) {
-    let (f, d, s) = bending_element(x, v, rest_angle, ke, kd, inv_h);
-    (f[role], Sym3::outer(d[role], s))
-}
-
 /// Damped spring between a free vertex `x` and a fixed point `anchor` (the attachment springs;
 /// the cups are kinematic). Stiffness: `ke·[d̂d̂ᵀ + max(0, 1 − L/l)·(I − d̂d̂ᵀ)] + kd/h·d̂d̂ᵀ`.
 #[inline(always)]
@@ -428,6 +229,7 @@ pub fn contact_vertex<T: Real>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::forces::bending_element;
 
     type V = V3<f64>;
 
@@ -605,6 +407,21 @@ mod tests {
         ]
     }
 
+    /// [`bending_element`] at one vertex (`role` 0, 1: opposite vertices; 2, 3: hinge): its force
+    /// and stiffness block `|e|·(ke + kd/h)·∇θ∇θᵀ` (Gauss-Newton).
+    fn bending_vertex<T: Real>(
+        x: [V3<T>; 4],
+        v: [V3<T>; 4],
+        role: usize,
+        rest_angle: T,
+        ke: T,
+        kd: T,
+        inv_h: T,
+    ) -> (V3<T>, Sym3<T>) {
+        let (f, d, s) = bending_element(x, v, rest_angle, ke, kd, inv_h);
+        (f[role], Sym3::outer(d[role], s))
+    }
+
     #[test]
     fn bending_stiffness_matches_finite_differences_at_the_rest_angle() {
         let x = hinge();
@@ -738,14 +555,5 @@ mod tests {
             assert_eq!(got, [fc.x, fc.y, fc.z].map(f32::to_bits), "lane {lane}");
             assert_eq!(k.m.map(|e| e.0[lane].to_bits()), kc.m.map(f32::to_bits));
         }
-    }
-
-    #[test]
-    fn solve_inverts_the_matrix() {
-        let mut a = Sym3::diagonal(2.0);
-        a.add_assign(Sym3::outer(v([1.0, 2.0, -1.0]), 3.0));
-        let b = v([0.5, -1.0, 2.0]);
-        let u = a.solve(b);
-        assert_vec_close(a.mul_vec(u), b, 1e-12);
     }
 }

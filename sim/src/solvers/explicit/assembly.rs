@@ -1,15 +1,114 @@
-//! Force assembly: every force term of the model, accumulated per particle for a block of lanes.
-//! Adding a force term means adding one function here and calling it from the half of
-//! [`super::Block::substep`]'s force evaluation it belongs to.
+//! Force assembly of the explicit solver: every force term of the model, accumulated per
+//! particle for a block of lanes. Adding a force term means adding one function here and calling
+//! it from the half of the force evaluation it belongs to ([`membrane_forces`] or
+//! [`contact_and_bending_forces`]).
 
+use crate::constants::StepConstants;
 use crate::forces::{self, ContactMaterial};
-use crate::math::{Lanes, Real, V3};
+use crate::math::{get3, set3, Lanes, Real, V3};
 use crate::model::{BendingEdge, Model, Triangle};
+use crate::solvers::across_elements::{gather_elements, E8, ELEMENT_LANES};
+use crate::state::{LaneDisc, LaneParams, LaneSpring};
 
-use super::{
-    gather_elements, get3, set3, LaneDisc, LaneParams, LaneSpring, StepConstants, E8,
-    ELEMENT_LANES, L,
-};
+type L<const W: usize> = Lanes<W>;
+
+/// [`membrane_forces`] compiled for AVX2 when the CPU has it.
+pub(super) fn membrane_forces_simd<const W: usize>(
+    model: &Model,
+    x: &[V3<L<W>>],
+    v: &[V3<L<W>>],
+    springs: &[LaneSpring<W>],
+    spring_force: &mut [V3<L<W>>],
+    p: &LaneParams<W>,
+    f: &mut [V3<L<W>>],
+) {
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn avx2<const W: usize>(
+        model: &Model,
+        x: &[V3<L<W>>],
+        v: &[V3<L<W>>],
+        springs: &[LaneSpring<W>],
+        spring_force: &mut [V3<L<W>>],
+        p: &LaneParams<W>,
+        f: &mut [V3<L<W>>],
+    ) {
+        membrane_forces(model, x, v, springs, spring_force, p, f)
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe { avx2(model, x, v, springs, spring_force, p, f) };
+        }
+    }
+    membrane_forces(model, x, v, springs, spring_force, p, f)
+}
+
+/// [`contact_and_bending_forces`] compiled for AVX2 when the CPU has it.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn contact_and_bending_forces_simd<const W: usize>(
+    model: &Model,
+    k: &StepConstants,
+    refresh: Option<L<W>>,
+    x: &[V3<L<W>>],
+    v: &[V3<L<W>>],
+    disc: &LaneDisc<W>,
+    p: &LaneParams<W>,
+    contact_point: &mut [V3<L<W>>],
+    contact_normal: &mut [V3<L<W>>],
+    f: &mut [V3<L<W>>],
+) -> (V3<L<W>>, V3<L<W>>) {
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn avx2<const W: usize>(
+        model: &Model,
+        k: &StepConstants,
+        refresh: Option<L<W>>,
+        x: &[V3<L<W>>],
+        v: &[V3<L<W>>],
+        disc: &LaneDisc<W>,
+        p: &LaneParams<W>,
+        cp: &mut [V3<L<W>>],
+        cn: &mut [V3<L<W>>],
+        f: &mut [V3<L<W>>],
+    ) -> (V3<L<W>>, V3<L<W>>) {
+        contact_and_bending_forces(model, k, refresh, x, v, disc, p, cp, cn, f)
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe {
+                avx2(
+                    model,
+                    k,
+                    refresh,
+                    x,
+                    v,
+                    disc,
+                    p,
+                    contact_point,
+                    contact_normal,
+                    f,
+                )
+            };
+        }
+    }
+    contact_and_bending_forces(
+        model,
+        k,
+        refresh,
+        x,
+        v,
+        disc,
+        p,
+        contact_point,
+        contact_normal,
+        f,
+    )
+}
 
 /// Attachment springs, membrane triangles and part of the bending, accumulated into `f`
 /// (cleared first).
@@ -64,6 +163,7 @@ pub(super) fn membrane_forces<const W: usize>(
     let split = bending_split(model);
     bending_forces(&model.package_edges[..split], p.edge, x, v, f);
 }
+
 /// Bending of `edges` with material `mat` (ke, kd), accumulated into `f`.
 #[inline(always)]
 fn bending_forces<const W: usize>(

@@ -2,12 +2,14 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::episode::{DiscState, EpisodeSpec};
+use crate::math::{get3, set3, Lanes, V3};
 use crate::model::Model;
-use crate::state::{DiscState, EpisodeSpec};
 use crate::tool::ToolDrive;
 
-use super::{get3, lane_params_set, set3, Block, L};
-use crate::math::V3;
+use super::EnvBlock;
+
+type L<const W: usize> = Lanes<W>;
 
 /// Everything that evolves in one lane (the material parameters are derived from the spec).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -44,41 +46,42 @@ fn fill<const W: usize>(values: &mut [V3<L<W>>], l: usize, from: &[[f32; 3]]) {
     }
 }
 
-impl<const W: usize> Block<W> {
+impl<const W: usize> EnvBlock<W> {
     /// A copy of lane `l`'s state.
     pub(crate) fn take_lane(&self, l: usize) -> LaneSnapshot {
-        let d = &self.disc;
+        let (state, setup) = (&self.state, &self.setup);
+        let d = &state.disc;
         let qv = get3(&d.q.v, l);
         LaneSnapshot {
-            x: column(&self.x, l),
-            v: column(&self.v, l),
-            x0: column(&self.x0, l),
-            contact_point: column(&self.contact_point, l),
-            contact_normal: column(&self.contact_normal, l),
-            cup_offsets: column(&self.cup_offsets, l),
-            springs: self
+            x: column(&state.x, l),
+            v: column(&state.v, l),
+            x0: column(&setup.x0, l),
+            contact_point: column(&state.contact_point, l),
+            contact_normal: column(&state.contact_normal, l),
+            cup_offsets: column(&setup.cup_offsets, l),
+            springs: state
                 .springs
                 .iter()
                 .map(|s| (s.target[l], s.rest.0[l], s.sealed.0[l], s.tension.0[l]))
                 .collect(),
-            cups: self
+            cups: state
                 .cups
                 .iter()
                 .map(|c| (c.attached.0[l], c.sealed_count.0[l], get3(&c.load, l)))
                 .collect(),
-            cup_axis_local: get3(&self.cup_axis_local, l),
+            cup_axis_local: get3(&setup.cup_axis_local, l),
             disc: DiscState {
                 position: get3(&d.com, l),
                 orientation: [qv[0], qv[1], qv[2], d.q.w.0[l]],
                 velocity: get3(&d.v, l),
                 angular_velocity: get3(&d.w, l),
             },
-            disc_x0: get3(&self.disc_x0, l),
-            disc_hold: self.disc_hold[l],
-            disc_turn: self.disc_turn[l],
-            tool: self.tools[l].clone(),
-            clock: self.clock[l],
-            active: self.active.0[l] > 0.5,
+            disc_x0: get3(&setup.disc_x0, l),
+            disc_hold: setup.disc_hold[l],
+            disc_turn: setup.disc_turn[l],
+            tool: setup.tools[l].clone(),
+            clock: state.clock[l],
+            active: state.active.0[l] > 0.5,
         }
     }
 
@@ -92,42 +95,43 @@ impl<const W: usize> Block<W> {
         snap: &LaneSnapshot,
     ) {
         for l in (0..W).filter(|&l| self.envs[l] == env).collect::<Vec<_>>() {
-            fill(&mut self.x, l, &snap.x);
-            fill(&mut self.v, l, &snap.v);
-            fill(&mut self.x0, l, &snap.x0);
-            fill(&mut self.contact_point, l, &snap.contact_point);
-            fill(&mut self.contact_normal, l, &snap.contact_normal);
-            fill(&mut self.cup_offsets, l, &snap.cup_offsets);
-            for (s, &(target, rest, sealed, tension)) in self.springs.iter_mut().zip(&snap.springs)
+            let (state, setup) = (&mut self.state, &mut self.setup);
+            fill(&mut state.x, l, &snap.x);
+            fill(&mut state.v, l, &snap.v);
+            fill(&mut setup.x0, l, &snap.x0);
+            fill(&mut state.contact_point, l, &snap.contact_point);
+            fill(&mut state.contact_normal, l, &snap.contact_normal);
+            fill(&mut setup.cup_offsets, l, &snap.cup_offsets);
+            for (s, &(target, rest, sealed, tension)) in state.springs.iter_mut().zip(&snap.springs)
             {
                 s.target[l] = target;
                 s.rest.0[l] = rest;
                 s.sealed.0[l] = sealed;
                 s.tension.0[l] = tension;
             }
-            for (c, &(attached, count, load)) in self.cups.iter_mut().zip(&snap.cups) {
+            for (c, &(attached, count, load)) in state.cups.iter_mut().zip(&snap.cups) {
                 c.attached.0[l] = attached;
                 c.sealed_count.0[l] = count;
                 set3(&mut c.load, l, load);
             }
-            set3(&mut self.cup_axis_local, l, snap.cup_axis_local);
+            set3(&mut setup.cup_axis_local, l, snap.cup_axis_local);
             let d = &snap.disc;
-            set3(&mut self.disc.com, l, d.position);
+            set3(&mut state.disc.com, l, d.position);
             set3(
-                &mut self.disc.q.v,
+                &mut state.disc.q.v,
                 l,
                 [d.orientation[0], d.orientation[1], d.orientation[2]],
             );
-            self.disc.q.w.0[l] = d.orientation[3];
-            set3(&mut self.disc.v, l, d.velocity);
-            set3(&mut self.disc.w, l, d.angular_velocity);
-            set3(&mut self.disc_x0, l, snap.disc_x0);
-            self.disc_hold[l] = snap.disc_hold;
-            self.disc_turn[l] = snap.disc_turn;
-            self.tools[l] = snap.tool.clone();
-            self.clock[l] = snap.clock;
-            self.active.0[l] = if snap.active { 1.0 } else { 0.0 };
-            lane_params_set(&mut self.params, l, model, spec);
+            state.disc.q.w.0[l] = d.orientation[3];
+            set3(&mut state.disc.v, l, d.velocity);
+            set3(&mut state.disc.w, l, d.angular_velocity);
+            set3(&mut setup.disc_x0, l, snap.disc_x0);
+            setup.disc_hold[l] = snap.disc_hold;
+            setup.disc_turn[l] = snap.disc_turn;
+            setup.tools[l] = snap.tool.clone();
+            state.clock[l] = snap.clock;
+            state.active.0[l] = if snap.active { 1.0 } else { 0.0 };
+            setup.params.set_lane(l, model, spec);
         }
     }
 }

@@ -1,85 +1,23 @@
 //! The suction seal of every cup (see [`crate::config::SealConfig`] for the model): loading at
-//! attach time, filtered loads every substep, and peeling, pull-off and sliding.
+//! attach time, filtered loads every substep, and peeling, pull-off and sliding. Its constants
+//! and load law are [`crate::constants::SealConstants`].
 
 use glam::{DQuat, DVec3};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-use crate::math::{Quat, Real, V3};
+use crate::constants::StepConstants;
+use crate::episode::{CupLoad, NoSealReason, SealEvent, SealEventKind};
+use crate::math::{get3, Lanes, Quat, Real, V3};
 use crate::model::Model;
-use crate::state::{CupLoad, NoSealReason, SealEvent, SealEventKind};
 
-use super::{get3, Block, StepConstants, L};
+use super::EnvBlock;
 
-/// Seal quantities fixed for a batch.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct SealConstants {
-    pub(crate) enabled: bool,
-    /// Low-pass filter weight per substep, dt / (τ + dt).
-    pub(crate) filter: f32,
-    /// Vacuum force of a fully sealed cup, Δp·π·r² (N).
-    pub(crate) full_capacity: f32,
-    /// Pull a lip element holds before it peels (N).
-    pub(crate) element_strength: f32,
-    pub(crate) friction: f32,
-    pub(crate) min_sealed_fraction: f32,
-}
+type L<const W: usize> = Lanes<W>;
 
-impl SealConstants {
-    pub(crate) fn new(model: &Model) -> Self {
-        let s = &model.config.seal;
-        let dt = model.config.dt();
-        let full_capacity = s.vacuum_kpa * 1e3 * std::f32::consts::PI * s.lip_radius_m.powi(2);
-        SealConstants {
-            enabled: s.enabled,
-            filter: dt / (s.load_filter_s + dt),
-            full_capacity,
-            element_strength: s.lip_strength_ratio * full_capacity / model.cup_size as f32,
-            friction: s.friction,
-            min_sealed_fraction: s.min_sealed_fraction,
-        }
-    }
-
-    /// A cup's load as reported: normal and shear parts of the film's force `force` on the cup
-    /// along `axis`, its capacity and utilisation.
-    pub(crate) fn cup_load(
-        &self,
-        attached: bool,
-        sealed_fraction: f32,
-        force: [f32; 3],
-        axis: [f32; 3],
-    ) -> CupLoad {
-        let normal = force[0] * axis[0] + force[1] * axis[1] + force[2] * axis[2];
-        let shear = (0..3)
-            .map(|c| (force[c] - normal * axis[c]).powi(2))
-            .sum::<f32>()
-            .sqrt();
-        let capacity = self.full_capacity * sealed_fraction;
-        let clamp = self.friction * (capacity - normal);
-        let pull = if capacity > 0.0 {
-            normal / capacity
-        } else {
-            f32::INFINITY
-        };
-        let slide = if clamp > 0.0 {
-            shear / clamp
-        } else {
-            f32::INFINITY
-        };
-        CupLoad {
-            attached,
-            normal_n: normal,
-            shear_n: shear,
-            capacity_n: capacity,
-            sealed_fraction,
-            utilisation: if attached { pull.max(slide) } else { 0.0 },
-        }
-    }
-}
-
-impl<const W: usize> Block<W> {
+impl<const W: usize> EnvBlock<W> {
     /// The cup axis of every lane under tool orientation `tq`.
-    pub(super) fn cup_axes(&self, tq: Quat<L<W>>) -> V3<L<W>> {
-        tq.rotate(self.cup_axis_local)
+    fn cup_axes(&self, tq: Quat<L<W>>) -> V3<L<W>> {
+        tq.rotate(self.setup.cup_axis_local)
     }
 
     /// Filters the cup and lip loads of this substep and, with the seal model on, lets go of
@@ -97,13 +35,14 @@ impl<const W: usize> Block<W> {
         let alpha = L::<W>::splat(seal.filter);
         let axis = self.cup_axes(tq);
         let half = L::<W>::splat(0.5);
-        let active = self.active;
+        let active = self.state.active;
         let cup_size = model.cup_size;
-        for (c, cup) in self.cups.iter_mut().enumerate() {
+        let state = &mut self.state;
+        for (c, cup) in state.cups.iter_mut().enumerate() {
             let mut sum = V3::<L<W>>::zero();
             for s in c * cup_size..(c + 1) * cup_size {
-                let f = self.spring_force[s];
-                let spring = &mut self.springs[s];
+                let f = state.spring_force[s];
+                let spring = &mut state.springs[s];
                 let tension = spring.tension + (f.dot(axis) - spring.tension) * alpha;
                 spring.tension = L::select_lt(half, active, tension, spring.tension);
                 sum += f;
@@ -116,27 +55,28 @@ impl<const W: usize> Block<W> {
         }
         for l in 0..W {
             // The rest period settles a package built flat: its transient is not a pick.
-            if self.active.0[l] < 0.5 || t[l] < k.rest_time {
+            if self.state.active.0[l] < 0.5 || t[l] < k.rest_time {
                 continue;
             }
             let lane_axis = get3(&axis, l);
             let mut lost_any = false;
-            for c in 0..self.cups.len() {
-                if self.cups[c].attached.0[l] < 0.5 {
+            for c in 0..self.state.cups.len() {
+                if self.state.cups[c].attached.0[l] < 0.5 {
                     continue;
                 }
                 // Peeling: lip elements pulled beyond their strength let go one by one.
-                let mut sealed = self.cups[c].sealed_count.0[l];
+                let mut sealed = self.state.cups[c].sealed_count.0[l];
                 for s in c * cup_size..(c + 1) * cup_size {
-                    let spring = &mut self.springs[s];
+                    let spring = &mut self.state.springs[s];
                     if spring.sealed.0[l] > 0.5 && spring.tension.0[l] > seal.element_strength {
                         spring.sealed.0[l] = 0.0;
                         sealed -= 1.0;
                     }
                 }
-                self.cups[c].sealed_count.0[l] = sealed;
+                self.state.cups[c].sealed_count.0[l] = sealed;
                 let fraction = sealed / cup_size as f32;
-                let load = seal.cup_load(true, fraction, get3(&self.cups[c].load, l), lane_axis);
+                let force = get3(&self.state.cups[c].load, l);
+                let load = seal.cup_load(true, fraction, force, lane_axis);
                 let failure = if fraction < seal.min_sealed_fraction {
                     Some(SealEventKind::Peeled)
                 } else if load.normal_n > load.capacity_n {
@@ -178,17 +118,21 @@ impl<const W: usize> Block<W> {
     }
 
     fn detach_cup(&mut self, l: usize, c: usize, cup_size: usize) {
-        let cup = &mut self.cups[c];
+        let cup = &mut self.state.cups[c];
         cup.attached.0[l] = 0.0;
         cup.sealed_count.0[l] = 0.0;
-        for spring in &mut self.springs[c * cup_size..(c + 1) * cup_size] {
+        for spring in &mut self.state.springs[c * cup_size..(c + 1) * cup_size] {
             spring.sealed.0[l] = 0.0;
         }
     }
 
     /// Cups of lane `l` still holding the film.
     pub(crate) fn attached_cups(&self, l: usize) -> u32 {
-        self.cups.iter().filter(|c| c.attached.0[l] > 0.5).count() as u32
+        self.state
+            .cups
+            .iter()
+            .filter(|c| c.attached.0[l] > 0.5)
+            .count() as u32
     }
 
     /// Attaches (seals) the cups of lane `l` to the film as it is now: each cup particle's spring
@@ -207,22 +151,22 @@ impl<const W: usize> Block<W> {
         let upper = model.layer_size..model.num_package;
         let mut lengths = Vec::with_capacity(model.num_cup);
         for k in 0..model.num_cup {
-            let c = get3(&self.x[cup_start + k], l);
+            let c = get3(&self.state.x[cup_start + k], l);
             let (mut best, mut best_d2) = (upper.start, f32::INFINITY);
             for j in upper.clone() {
-                let p = get3(&self.x[j], l);
+                let p = get3(&self.state.x[j], l);
                 let d2 = (c[0] - p[0]).powi(2) + (c[1] - p[1]).powi(2) + (c[2] - p[2]).powi(2);
                 if d2 < best_d2 {
                     best = j;
                     best_d2 = d2;
                 }
             }
-            self.springs[k].target[l] = best as u32;
+            self.state.springs[k].target[l] = best as u32;
             lengths.push(best_d2.sqrt());
         }
         let common = lengths.iter().copied().fold(f32::INFINITY, f32::min);
         for (k, len) in lengths.iter().enumerate() {
-            let spring = &mut self.springs[k];
+            let spring = &mut self.state.springs[k];
             spring.rest.0[l] = if model.config.cups.common_rest_length {
                 common
             } else {
@@ -233,7 +177,7 @@ impl<const W: usize> Block<W> {
         }
         let cup_size = model.cup_size;
         for c in 0..model.num_cups() {
-            let cup = &mut self.cups[c];
+            let cup = &mut self.state.cups[c];
             cup.attached.0[l] = 1.0;
             cup.sealed_count.0[l] = cup_size as f32;
             for comp in [&mut cup.load.x, &mut cup.load.y, &mut cup.load.z] {
@@ -243,7 +187,7 @@ impl<const W: usize> Block<W> {
         if !model.config.seal.enabled {
             return;
         }
-        let local = get3(&self.cup_axis_local, l).map(f64::from);
+        let local = get3(&self.setup.cup_axis_local, l).map(f64::from);
         let axis = DQuat::from_array(tool_orientation) * DVec3::from(local);
         let axis = Vector3::new(axis.x, axis.y, axis.z);
         let mut any = false;
@@ -277,12 +221,12 @@ impl<const W: usize> Block<W> {
         let cup_size = model.cup_size;
         let cup_start = model.cup_start() + c * cup_size;
         let mut targets: Vec<usize> = (c * cup_size..(c + 1) * cup_size)
-            .map(|s| self.springs[s].target[l] as usize)
+            .map(|s| self.state.springs[s].target[l] as usize)
             .collect();
         targets.sort_unstable();
         targets.dedup();
         let point = |i: usize| {
-            let p = get3(&self.x[i], l);
+            let p = get3(&self.state.x[i], l);
             Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
         };
         let centre = targets.iter().map(|&i| point(i)).sum::<Vector3<f64>>() / targets.len() as f64;
@@ -321,20 +265,17 @@ impl<const W: usize> Block<W> {
 
     /// The loads of every cup of lane `l`, written to `out` (one entry per cup).
     pub(crate) fn read_cup_loads(&self, l: usize, k: &StepConstants, out: &mut [CupLoad]) {
-        let tool = self.tools[l].state_at(self.clock[l] as f64 * k.dt64, k.rest_time);
+        let tool = self.tool_state(l, k, 0.0);
         let q = tool.orientation;
         let q = Quat {
             v: V3::new(q[0] as f32, q[1] as f32, q[2] as f32),
             w: q[3] as f32,
         };
-        let axis = q.rotate(V3::new(
-            self.cup_axis_local.x.0[l],
-            self.cup_axis_local.y.0[l],
-            self.cup_axis_local.z.0[l],
-        ));
+        let local = &self.setup.cup_axis_local;
+        let axis = q.rotate(V3::new(local.x.0[l], local.y.0[l], local.z.0[l]));
         let axis = [axis.x, axis.y, axis.z];
-        let cup_size = self.springs.len() / self.cups.len();
-        for (cup, slot) in self.cups.iter().zip(out.iter_mut()) {
+        let cup_size = self.state.springs.len() / self.state.cups.len();
+        for (cup, slot) in self.state.cups.iter().zip(out.iter_mut()) {
             let attached = cup.attached.0[l] > 0.5;
             let fraction = cup.sealed_count.0[l] / cup_size as f32;
             *slot = k
@@ -353,7 +294,7 @@ mod tests {
     use crate::{EpisodeSpec, Placement, SceneConfig, ToolTrajectory};
 
     /// A one-lane block of the physical scene with the seal on, its clock past the rest.
-    fn block() -> (Model, Block<1>) {
+    fn block() -> (Model, EnvBlock<1>) {
         let mut c = SceneConfig::preset("physical").unwrap();
         c.package.grid = [6, 7];
         c.seal.enabled = true;
@@ -373,25 +314,25 @@ mod tests {
                 [0.0, 0.0, 0.0, 1.0],
             )),
         };
-        let mut b = Block::<1>::new(&model, &[spec], [0], [true]);
-        b.clock[0] = 2 * (c.cups.rest_time_s as f64 / c.dt() as f64) as u64;
+        let mut b = EnvBlock::<1>::new(&model, &[spec], [0], [true]);
+        b.state.clock[0] = 2 * (c.cups.rest_time_s as f64 / c.dt() as f64) as u64;
         (model, b)
     }
 
     /// Applies `per_spring(s)` (force of the film on each cup particle) for 0.1 s of substeps
     /// (ten filter time constants).
-    fn load(model: &Model, b: &mut Block<1>, per_spring: impl Fn(usize) -> [f32; 3]) {
+    fn load(model: &Model, b: &mut EnvBlock<1>, per_spring: impl Fn(usize) -> [f32; 3]) {
         let k = StepConstants::new(model);
         let level = Quat {
             v: V3::zero(),
             w: Lanes([1.0]),
         };
         for _ in 0..(0.1 / k.dt64) as usize {
-            for (s, f) in b.spring_force.iter_mut().enumerate() {
+            for (s, f) in b.state.spring_force.iter_mut().enumerate() {
                 let g = per_spring(s);
                 *f = V3::new(Lanes([g[0]]), Lanes([g[1]]), Lanes([g[2]]));
             }
-            let t = [b.clock[0] as f64 * k.dt64];
+            let t = [b.state.clock[0] as f64 * k.dt64];
             b.update_seals(model, &k, level, &t);
         }
     }
@@ -456,7 +397,7 @@ mod tests {
             "{slid:?}"
         );
         // A cup that let go transmits nothing from then on and reads as detached.
-        assert_eq!(b.springs[0].sealed.0[0], 0.0);
+        assert_eq!(b.state.springs[0].sealed.0[0], 0.0);
         b.read_cup_loads(0, &k, &mut loads);
         assert!(!loads[0].attached && loads[0].utilisation == 0.0);
         assert_eq!(b.attached_cups(0), 2);

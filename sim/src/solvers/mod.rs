@@ -1,0 +1,95 @@
+//! The solvers that advance a block's [`State`] by one substep, behind one interface
+//! ([`Integrator`]), one folder each:
+//! * [`explicit`]: Warp's semi-implicit Euler ([`Solver::SemiImplicitEuler`]): one force evaluation
+//!   per substep.
+//! * [`block_descent`]: implicit Euler solved by Vertex Block Descent ([`Solver::BlockDescent`]).
+//!
+//! The scene's `integrator.solver` picks one for the whole batch; each block holds it as an
+//! [`AnySolver`] with the solver's own buffers and settings, and dispatches once per substep. A
+//! solver reads the shared [`Model`], the batch's [`StepConstants`] and what each lane's episode
+//! prescribes ([`LaneSetup`]), is given the substep's times and tool poses ([`Substep`]), and
+//! updates the [`State`] in place, including the attachment springs' forces for the seal model
+//! (the block runs the seal and health checks after it). Force laws come from [`crate::forces`];
+//! the solvers never depend on each other.
+//!
+//! Every solver keeps the lane rules of the batch: a lane's arithmetic never depends on another
+//! lane's, frozen lanes are kept bit for bit by per-lane selects, and lane-dependent shortcuts
+//! (skipping contacts when every lane is far away) only skip work whose lanes would be left
+//! unchanged: contact forces are applied by a per-lane select, never by adding a zero.
+//!
+//! Adding a solver: a folder with a type implementing [`Integrator`], a variant of [`Solver`]
+//! (its name in the scene TOML) and of [`AnySolver`] (with its arm in each `match` below).
+
+pub(crate) mod across_elements;
+pub(crate) mod block_descent;
+pub(crate) mod explicit;
+
+use crate::config::Solver;
+use crate::constants::StepConstants;
+use crate::model::Model;
+use crate::state::{LaneSetup, State, ToolLanes};
+
+use block_descent::BlockDescent;
+use explicit::SemiImplicitEuler;
+
+/// What a solver is given for one substep besides the state it advances.
+pub(crate) struct Substep<'a, const W: usize> {
+    pub(crate) model: &'a Model,
+    pub(crate) k: &'a StepConstants,
+    pub(crate) setup: &'a LaneSetup<W>,
+    /// Each lane's time at the end of the substep (s).
+    pub(crate) t1: [f64; W],
+    /// The tool of each lane at the start of the substep.
+    pub(crate) tool: ToolLanes<W>,
+    /// Whether the solver may split the block's work over two threads: a single-environment
+    /// batch has one block, and the other cores would idle.
+    pub(crate) parallel: bool,
+}
+
+/// A solver: maps the state of a block's lanes to the next substep, in place.
+pub(crate) trait Integrator<const W: usize> {
+    /// The solver for batches of `model`, with its buffers sized for it.
+    fn new(model: &Model) -> Self
+    where
+        Self: Sized;
+
+    /// Advances the active lanes of `state` by one substep; frozen lanes stay bit for bit as they
+    /// are. `state.clock` is the substep's start (the caller advances it). Writes
+    /// `state.spring_force`.
+    fn substep(&mut self, step: &Substep<'_, W>, state: &mut State<W>);
+
+    /// Bytes held by the solver's buffers.
+    fn bytes(&self) -> usize;
+}
+
+/// The solver of a block, as the scene's `integrator.solver` chose it.
+pub(crate) enum AnySolver<const W: usize> {
+    SemiImplicitEuler(SemiImplicitEuler<W>),
+    BlockDescent(BlockDescent<W>),
+}
+
+impl<const W: usize> Integrator<W> for AnySolver<W> {
+    fn new(model: &Model) -> Self {
+        match model.config.integrator.solver {
+            Solver::SemiImplicitEuler => {
+                AnySolver::SemiImplicitEuler(SemiImplicitEuler::new(model))
+            }
+            Solver::BlockDescent => AnySolver::BlockDescent(BlockDescent::new(model)),
+        }
+    }
+
+    #[inline(always)]
+    fn substep(&mut self, step: &Substep<'_, W>, state: &mut State<W>) {
+        match self {
+            AnySolver::SemiImplicitEuler(s) => s.substep(step, state),
+            AnySolver::BlockDescent(s) => s.substep(step, state),
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        match self {
+            AnySolver::SemiImplicitEuler(s) => s.bytes(),
+            AnySolver::BlockDescent(s) => s.bytes(),
+        }
+    }
+}
