@@ -1,7 +1,12 @@
-//! Exit-code policy: bad user input (a file, a key, a value) exits with code 2, a command stopped by
-//! Ctrl-C or SIGTERM with 130, anything else with 1.
+//! Exit-code policy, for every command: bad user input (a file, a key, a value) exits with code 2,
+//! a command stopped by Ctrl-C or SIGTERM with 130, anything else with 1. The errors of the library
+//! crates are sorted here ([`agent_error`], [`export_error`]).
 
 use std::fmt;
+use std::path::Path;
+
+use rlpkg_agents::export::ExportError;
+use rlpkg_agents::AgentError;
 
 /// An error in what the user gave: a file that is missing or malformed, a key that is unknown, a
 /// value out of range. The message must name the file, the key or line, and what was expected.
@@ -19,6 +24,36 @@ impl std::error::Error for InputError {}
 /// Wraps any displayable error as an [`InputError`] (exit code 2).
 pub fn input_error(err: impl fmt::Display) -> anyhow::Error {
     anyhow::Error::new(InputError(err.to_string()))
+}
+
+/// An error of the learner (a configuration, a run folder or checkpoint, a size, the environment):
+/// the user's (exit 2) when [`AgentError::is_input_error`] says so, a fault otherwise.
+pub fn agent_error(err: AgentError) -> anyhow::Error {
+    if err.is_input_error() {
+        input_error(err)
+    } else {
+        err.into()
+    }
+}
+
+/// An error of the ONNX exporter or runtime; `given` is the ONNX file the user gave to run
+/// (`rlpkg eval --policy`), `None` for a file the command wrote. The user's (exit 2): a file that
+/// cannot be read or written, is not an ONNX model or lacks the metadata `rlpkg export` writes; a
+/// given file that tract cannot run, or that does not fit the environment its metadata names (the
+/// message then names the file). A fault otherwise (an inconsistent graph, a written file that
+/// tract cannot run or that does not reproduce the policy).
+pub fn export_error(err: ExportError, given: Option<&Path>) -> anyhow::Error {
+    match (&err, given) {
+        (
+            ExportError::Io { .. } | ExportError::NotOnnx { .. } | ExportError::Metadata { .. },
+            _,
+        )
+        | (ExportError::Runtime { .. }, Some(_)) => input_error(err),
+        (ExportError::Env(_) | ExportError::ObsShape { .. }, Some(path)) => {
+            input_error(format!("{}: {err}", path.display()))
+        }
+        _ => err.into(),
+    }
 }
 
 /// The process exit code for an error returned by a command: 130 when a signal stopped it, 2 for

@@ -1,12 +1,14 @@
 //! `rlpkg`: learn to move deformable packages with a suction gripper.
 //!
 //! Each subcommand lives in its own module under `cmd/`; this file only parses and dispatches.
+//! The tasks (which environment an id names, built from its settings table) live in `tasks/`.
 
 mod cmd;
 mod error;
 mod files;
 mod interrupt;
 mod render;
+mod tasks;
 
 use clap::{Parser, Subcommand};
 

@@ -214,24 +214,23 @@ pub struct EnvBenchResult {
     pub steps_per_second: f64,
 }
 
-/// Steps `num_envs` copies of `env_id` with random actions for `steps` lockstep steps.
+/// Steps every copy of `env` with random actions for `steps` lockstep steps.
 pub fn env_throughput(
-    env_id: &str,
-    num_envs: usize,
+    env: &mut dyn rlpkg_vec_env::VecEnv,
     steps: usize,
 ) -> Result<EnvBenchResult, AgentError> {
-    let mut env = rlpkg_env::make(env_id, num_envs)?;
+    let num_envs = env.num_envs();
     let spec = env.spec().clone();
     let mut buffers = env.buffers();
-    env.reset(0, &mut buffers);
+    env.reset(0, &mut buffers)?;
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let a = spec.action.dim();
     let actions: Vec<Vec<f32>> = (0..16)
         .map(|_| match spec.action.kind {
-            rlpkg_env::SpaceKind::Discrete { n } => (0..num_envs)
+            rlpkg_vec_env::SpaceKind::Discrete { n } => (0..num_envs)
                 .map(|_| rng.random_range(0..n) as f32)
                 .collect(),
-            rlpkg_env::SpaceKind::Continuous => (0..num_envs * a)
+            rlpkg_vec_env::SpaceKind::Continuous => (0..num_envs * a)
                 .map(|k| {
                     let (low, high) = (spec.action.low[k % a], spec.action.high[k % a]);
                     low + (high - low) * rng.random::<f32>()
@@ -244,7 +243,7 @@ pub fn env_throughput(
         env.step(&actions[step % actions.len()], &mut buffers)?;
     }
     Ok(EnvBenchResult {
-        env_id: env_id.to_string(),
+        env_id: spec.id,
         num_envs,
         steps_per_second: (steps * num_envs) as f64 / start.elapsed().as_secs_f64(),
     })

@@ -1,13 +1,20 @@
 //! Training configuration read from TOML: every hyperparameter is named and required; unknown keys
 //! and out-of-range values are rejected with the file, the key and the expected range.
+//!
+//! These are the learner's sections of a training file (`[run]`, `[ppo]`, `[policy]`,
+//! `[normalization]`). A task's own settings table (e.g. `[transport]`) belongs to whatever builds
+//! the task's environment, which reads the file with [`parse_toml`] into its own struct holding
+//! these sections beside its table.
 
 use std::path::Path;
 
+use rlpkg_vec_env::{EnvSpec, SpaceKind};
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::AgentError;
 
-/// A whole training configuration (`configs/train/cartpole.toml`, `configs/train/pendulum.toml`).
+/// The learner's whole configuration (`configs/train/cartpole.toml`, `configs/train/pendulum.toml`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainConfig {
@@ -19,11 +26,7 @@ pub struct TrainConfig {
     pub policy: PolicyConfig,
     /// Observation and reward normalisation.
     pub normalization: NormalizationConfig,
-    /// Settings of the `Transport-v0` environment (the `[transport]` table, see
-    /// `rlpkg_env::TransportConfig`); absent for the classic-control tasks.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub transport: Option<toml::Table>,
-    /// The file the configuration was read from (named in the environment's messages).
+    /// The file the configuration was read from (named in messages).
     #[serde(skip)]
     pub source: String,
 }
@@ -32,7 +35,8 @@ pub struct TrainConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
-    /// Environment id, e.g. `CartPole-v1`.
+    /// Environment id, e.g. `CartPole-v1`: which environment to build is the caller's choice (the
+    /// trainer takes the environment it is handed and reads its spec).
     pub env: String,
     /// Number of environment copies stepped in lockstep.
     pub num_envs: usize,
@@ -146,28 +150,32 @@ pub struct NormalizationConfig {
     pub epsilon: f32,
 }
 
-impl TrainConfig {
-    /// Reads and validates a configuration file; returns it with its text (copied into runs).
-    pub fn load(path: &Path) -> Result<(Self, String), AgentError> {
-        let bytes = std::fs::read(path).map_err(|e| AgentError::io(path, e))?;
-        let text = String::from_utf8(bytes).map_err(|e| AgentError::ConfigParse {
-            path: path.into(),
-            message: format!(
-                "not UTF-8 text (byte {}); expected a TOML configuration",
-                e.utf8_error().valid_up_to()
-            ),
-        })?;
-        let config = Self::parse(&text, path)?;
-        Ok((config, text))
-    }
+/// The text of the configuration file at `path` (runs keep a copy of it).
+pub fn read_config_text(path: &Path) -> Result<String, AgentError> {
+    let bytes = std::fs::read(path).map_err(|e| AgentError::io(path, e))?;
+    String::from_utf8(bytes).map_err(|e| AgentError::ConfigParse {
+        path: path.into(),
+        message: format!(
+            "not UTF-8 text (byte {}); expected a TOML configuration",
+            e.utf8_error().valid_up_to()
+        ),
+    })
+}
 
-    /// Parses and validates configuration text; `path` is only used in messages.
+/// Parses configuration text into `T`; errors name `path`, the key and the line.
+pub fn parse_toml<T: DeserializeOwned>(text: &str, path: &Path) -> Result<T, AgentError> {
+    toml::from_str(text).map_err(|e| AgentError::ConfigParse {
+        path: path.into(),
+        message: e.to_string().trim_end().to_string(),
+    })
+}
+
+impl TrainConfig {
+    /// Parses and validates the text of a file holding the learner's sections only; `path` is
+    /// only used in messages. Whether the sizes fit in memory depends on the environment: see
+    /// [`TrainConfig::check_memory_for`].
     pub fn parse(text: &str, path: &Path) -> Result<Self, AgentError> {
-        let mut config: TrainConfig =
-            toml::from_str(text).map_err(|e| AgentError::ConfigParse {
-                path: path.into(),
-                message: e.to_string().trim_end().to_string(),
-            })?;
+        let mut config: TrainConfig = parse_toml(text, path)?;
         config.source = path.display().to_string();
         config.validate(path)?;
         Ok(config)
@@ -240,30 +248,6 @@ impl TrainConfig {
             })
         };
         let (run, ppo, policy, norm) = (&self.run, &self.ppo, &self.policy, &self.normalization);
-        if !rlpkg_env::ALL_IDS.contains(&run.env.as_str()) {
-            let known = format!("one of {}", rlpkg_env::ALL_IDS.join(", "));
-            return fail("run.env", format!("{:?}", run.env), &known);
-        }
-        match (&self.transport, run.env == rlpkg_env::transport::ID) {
-            (Some(table), true) => {
-                rlpkg_env::TransportConfig::from_table(table, &path.display().to_string())?;
-            }
-            (None, true) => {
-                return fail(
-                    "transport",
-                    "missing".into(),
-                    "a [transport] table for run.env = \"Transport-v0\"",
-                )
-            }
-            (Some(_), false) => {
-                return fail(
-                    "transport",
-                    "a table".into(),
-                    &format!("no [transport] table for run.env = {:?}", run.env),
-                )
-            }
-            (None, false) => {}
-        }
         let counts = [
             ("run.num_envs", run.num_envs, 1, 1 << 20),
             ("run.checkpoint_every", run.checkpoint_every, 1, usize::MAX),
@@ -344,20 +328,15 @@ impl TrainConfig {
                 );
             }
         }
-        self.check_memory(path)
+        Ok(())
     }
 
-    /// Compares [`TrainConfig::memory_estimate`] with the memory of the machine and names the
-    /// part that does not fit.
-    fn check_memory(&self, path: &Path) -> Result<(), AgentError> {
-        let spec = rlpkg_env::spec_with(
-            &self.run.env,
-            self.transport.as_ref(),
-            &path.display().to_string(),
-        )?;
+    /// Compares [`TrainConfig::memory_estimate`] for the environment `spec` describes with the
+    /// memory of the machine and names the part that does not fit.
+    pub fn check_memory_for(&self, spec: &EnvSpec, path: &Path) -> Result<(), AgentError> {
         let actor_out = match spec.action.kind {
-            rlpkg_env::SpaceKind::Discrete { n } => n,
-            rlpkg_env::SpaceKind::Continuous => spec.action.dim(),
+            SpaceKind::Discrete { n } => n,
+            SpaceKind::Continuous => spec.action.dim(),
         };
         let critic_obs_dim = spec.critic_observation.as_ref().map(|c| c.dim());
         let memory = self.memory_estimate(
@@ -539,8 +518,26 @@ clip_reward = 10.0
 epsilon = 1e-8
 "#;
 
+    /// `num_envs` copies of the classic-control environment `id`.
+    pub(crate) fn classic_env(id: &str, num_envs: usize) -> Box<dyn rlpkg_vec_env::VecEnv> {
+        match id {
+            rlpkg_vec_env::cartpole::ID => Box::new(rlpkg_vec_env::CartPole::new(num_envs)),
+            rlpkg_vec_env::pendulum::ID => Box::new(rlpkg_vec_env::Pendulum::new(num_envs)),
+            other => panic!("no classic-control environment {other}"),
+        }
+    }
+
     fn parse(text: &str) -> Result<TrainConfig, AgentError> {
         TrainConfig::parse(text, Path::new("cfg.toml"))
+    }
+
+    /// [`parse`], then the memory check for CartPole.
+    fn parse_for_cartpole(text: &str) -> Result<TrainConfig, AgentError> {
+        use rlpkg_vec_env::VecEnv;
+        let config = parse(text)?;
+        let spec = rlpkg_vec_env::CartPole::new(1).spec().clone();
+        config.check_memory_for(&spec, Path::new("cfg.toml"))?;
+        Ok(config)
     }
 
     #[test]
@@ -575,12 +572,6 @@ epsilon = 1e-8
                 "divisor",
             ),
             ("num_envs = 4", "num_envs = 0", "run.num_envs", "[1,"),
-            (
-                "env = \"CartPole-v1\"",
-                "env = \"Cartpole\"",
-                "run.env",
-                "Pendulum-v1",
-            ),
             (
                 "actor_hidden = [32, 32]",
                 "actor_hidden = []",
@@ -633,7 +624,7 @@ epsilon = 1e-8
                     .replace(from2, to2)
                     .replace("total_steps = 2048", "total_steps = 1099511627776");
             }
-            let err = parse(&text).unwrap_err().to_string();
+            let err = parse_for_cartpole(&text).unwrap_err().to_string();
             assert!(
                 err.contains(key) && err.contains("would need about"),
                 "{err}"
@@ -643,7 +634,7 @@ epsilon = 1e-8
                 "{err}"
             );
         }
-        let config = parse(CARTPOLE_TEST).unwrap();
+        let config = parse_for_cartpole(CARTPOLE_TEST).unwrap();
         let memory = config.memory_estimate(4, None, 1, 2);
         // 256 transitions x (4 + 1 + 6) floats, twice.
         assert_eq!(memory.rollout, 2.0 * 256.0 * 11.0 * 4.0);
@@ -666,39 +657,5 @@ epsilon = 1e-8
     fn config_hash_changes_with_text() {
         assert_ne!(config_hash("a"), config_hash("b"));
         assert_eq!(config_hash("abc").len(), 16);
-    }
-
-    /// `configs/train/transport.toml` with the scene and recordings found from this crate's folder.
-    pub(crate) fn transport_config_text() -> String {
-        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
-        std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
-            .unwrap()
-            .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
-            .replace(
-                "recordings = \"data/deformable-sim-real\"",
-                &format!("recordings = \"{root}/data/deformable-sim-real\""),
-            )
-    }
-
-    #[test]
-    fn the_shipped_transport_config_parses_and_bad_transport_keys_are_named() {
-        let text = transport_config_text();
-        let config = parse(&text).unwrap();
-        assert_eq!(config.run.env, "Transport-v0");
-        assert!(config.transport.is_some());
-        let err = parse(&text.replace("control_hz = 20.0", "control_hz = 50.0"))
-            .unwrap_err()
-            .to_string();
-        assert!(
-            err.contains("cfg.toml") && err.contains("transport.control_hz"),
-            "{err}"
-        );
-        // The classic-control tasks take no [transport] table; the transport task needs one.
-        let stray = format!("{CARTPOLE_TEST}\n[transport]\nscene = \"physical\"\n");
-        let err = parse(&stray).unwrap_err().to_string();
-        assert!(err.contains("no [transport] table"), "{err}");
-        let missing = text[..text.find("\n[transport]\n").unwrap()].to_string();
-        let err = parse(&missing).unwrap_err().to_string();
-        assert!(err.contains("[transport]"), "{err}");
     }
 }

@@ -55,7 +55,7 @@ pub enum AgentError {
     },
     /// The environment rejected a call.
     #[error("environment: {0}")]
-    Env(#[from] rlpkg_env::EnvError),
+    Env(#[from] rlpkg_vec_env::EnvError),
 }
 
 impl AgentError {

@@ -1,6 +1,9 @@
 //! PPO in burn, laid out like RSL-RL: [`modules`] (actor-critic, distributions, normalisers),
 //! [`storage`] (rollouts and GAE), [`algorithms`] (the PPO update), [`runners`] (training loop,
 //! checkpoints, evaluation); plus [`export`] (ONNX) and [`bench`] (throughput figures).
+//!
+//! The learner knows no task: it trains on the environment it is handed (any
+//! [`rlpkg_vec_env::VecEnv`]) and reads everything else from its spec.
 
 pub mod algorithms;
 mod backend;
@@ -15,4 +18,4 @@ pub mod storage;
 pub use backend::Backend;
 pub use config::TrainConfig;
 pub use error::AgentError;
-pub use runners::{evaluate_run, load_policy_graph, EvalSummary, TrainSummary, Trainer};
+pub use runners::{EvalSummary, TrainSummary, TrainedPolicy, Trainer};

@@ -3,8 +3,10 @@
 use std::io::Write;
 
 use clap::{Args, Subcommand};
+use rlpkg_agents::config::check_memory;
 
 use crate::error::input_error;
+use crate::tasks::Task;
 
 /// The benchmarks.
 #[derive(Subcommand)]
@@ -12,7 +14,7 @@ pub enum BenchCommand {
     /// Simulator throughput: particle-substeps/s, real-time factor and peak memory per grid and batch size.
     Sim(SimBenchArgs),
     /// PPO update throughput (samples/s per burn backend) and environment steps/s.
-    Ppo(crate::cmd::train::PpoBenchArgs),
+    Ppo(PpoBenchArgs),
 }
 
 /// Arguments of `rlpkg bench sim`.
@@ -105,11 +107,8 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
             for &n in &envs {
                 // Batches are stored in blocks of 8 environments (a lone environment in a 1-lane block).
                 let bytes = (n as f64 / 8.0).ceil() * 8.0 * one as f64;
-                rlpkg_agents::config::check_memory(
-                    &format!("--grid {}x{} --envs {n}", grid[0], grid[1]),
-                    bytes,
-                )
-                .map_err(input_error)?;
+                check_memory(&format!("--grid {}x{} --envs {n}", grid[0], grid[1]), bytes)
+                    .map_err(input_error)?;
             }
         }
     }
@@ -202,6 +201,161 @@ fn measure_workload(
 pub fn run(command: BenchCommand) -> anyhow::Result<()> {
     match command {
         BenchCommand::Sim(args) => run_sim(args),
-        BenchCommand::Ppo(args) => crate::cmd::train::run_bench(args),
+        BenchCommand::Ppo(args) => run_ppo(args),
     }
+}
+
+/// Arguments of `rlpkg bench ppo`.
+#[derive(Args)]
+pub struct PpoBenchArgs {
+    /// burn backends to measure: flex, ndarray, or both (comma-separated).
+    #[arg(long, default_value = "flex,ndarray", value_delimiter = ',')]
+    pub backend: Vec<String>,
+    /// Samples per minibatch.
+    #[arg(long, default_value_t = 4096)]
+    pub minibatch: usize,
+    /// Timed minibatches per backend (at most 10000).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    pub minibatches: u64,
+    /// Observation width.
+    #[arg(long, default_value_t = 48)]
+    pub obs_dim: usize,
+    /// Action width.
+    #[arg(long, default_value_t = 6)]
+    pub action_dim: usize,
+    /// Hidden widths of actor and critic (comma-separated).
+    #[arg(long, default_value = "256,256", value_delimiter = ',')]
+    pub hidden: Vec<usize>,
+    /// Lockstep steps of the environment benchmark (0 skips it; at most 10 million).
+    #[arg(long, default_value_t = 20000, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
+    pub env_steps: u64,
+    /// Copies in the environment benchmark.
+    #[arg(long, default_value_t = 64)]
+    pub num_envs: usize,
+    /// Print the results as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Bytes of the PPO benchmark: actor and critic with gradients and Adam moments (x6), and one
+/// minibatch's data and activations with their gradients.
+fn ppo_bench_memory_bytes(args: &PpoBenchArgs) -> f64 {
+    let network = |out: usize| {
+        let mut widths = vec![args.obs_dim];
+        widths.extend_from_slice(&args.hidden);
+        widths.push(out);
+        widths
+            .windows(2)
+            .map(|w| (w[0] as f64 + 1.0) * w[1] as f64)
+            .sum::<f64>()
+    };
+    let parameters = network(args.action_dim) + network(1);
+    let widths = 2 * args.hidden.iter().sum::<usize>() + args.obs_dim + args.action_dim;
+    let per_row = 4 * widths + 2 * (args.obs_dim + args.action_dim + 6);
+    4.0 * (6.0 * parameters + args.minibatch as f64 * per_row as f64)
+}
+
+/// `rlpkg bench ppo`: PPO update throughput (forward + backward + global clip + Adam) per backend,
+/// and CartPole / Pendulum steps per second.
+fn run_ppo(args: PpoBenchArgs) -> anyhow::Result<()> {
+    use rlpkg_agents::bench::{
+        env_throughput, matmul_throughput, ppo_update_throughput, PpoBenchConfig,
+    };
+    if args.minibatch == 0 || args.obs_dim == 0 || args.action_dim == 0 {
+        return Err(input_error(
+            "--minibatch, --obs-dim and --action-dim: expected at least 1",
+        ));
+    }
+    if args.hidden.is_empty() || args.hidden.contains(&0) {
+        return Err(input_error(
+            "--hidden: expected widths of at least 1, e.g. 256,256",
+        ));
+    }
+    check_memory(
+        &format!(
+            "--minibatch {} --hidden {:?} --obs-dim {} --action-dim {}",
+            args.minibatch, args.hidden, args.obs_dim, args.action_dim
+        ),
+        ppo_bench_memory_bytes(&args),
+    )
+    .map_err(input_error)?;
+    let (minibatches, env_steps) = (args.minibatches as usize, args.env_steps as usize);
+    if env_steps > 0 {
+        check_memory(
+            &format!("--num-envs {}", args.num_envs),
+            rlpkg_agents::runners::evaluation_memory_bytes(args.num_envs, 4, 0),
+        )
+        .map_err(input_error)?;
+    }
+    let mut updates = Vec::new();
+    let mut matmuls = Vec::new();
+    for name in &args.backend {
+        let backend = rlpkg_agents::Backend::parse(name)
+            .ok_or_else(|| input_error(format!("--backend {name}: expected flex or ndarray")))?;
+        let result = ppo_update_throughput(&PpoBenchConfig {
+            obs_dim: args.obs_dim,
+            action_dim: args.action_dim,
+            hidden: args.hidden.clone(),
+            minibatch: args.minibatch,
+            minibatches,
+            backend,
+        });
+        let shares = &result.shares;
+        eprintln!(
+            "ppo update [{}] {}-{:?}-{} ({} parameters), minibatch {}: {:.0} samples/s ({:.1} ms/minibatch; forward {:.0} %, backward {:.0} %, optimiser {:.0} %, batching {:.0} %; {:.0} samples per CPU second)",
+            result.backend,
+            args.obs_dim,
+            args.hidden,
+            args.action_dim,
+            result.parameters,
+            args.minibatch,
+            result.samples_per_second,
+            result.ms_per_minibatch,
+            100.0 * shares.forward,
+            100.0 * shares.backward,
+            100.0 * shares.optimiser,
+            100.0 * shares.batch,
+            result.samples_per_cpu_second.unwrap_or(f64::NAN),
+        );
+        updates.push(result);
+        // The layer products of the update: the forward x W of the first two layers and the
+        // weight gradient x^T dz of the second.
+        let (m, h0) = (args.minibatch, args.hidden[0]);
+        let h1 = args.hidden.get(1).copied().unwrap_or(h0);
+        for (shape, transposed) in [
+            ([m, args.obs_dim, h0], false),
+            ([m, h0, h1], false),
+            ([h0, m, h1], true),
+        ] {
+            let result = matmul_throughput(backend, shape, transposed, 5);
+            eprintln!(
+                "matmul [{}] {}x{}{} x {}x{}: {:.1} GFLOP/s",
+                result.backend,
+                shape[0],
+                shape[1],
+                if transposed { " (transposed view)" } else { "" },
+                shape[1],
+                shape[2],
+                result.gflops
+            );
+            matmuls.push(result);
+        }
+    }
+    let mut envs = Vec::new();
+    if env_steps > 0 {
+        for task in Task::without_settings() {
+            let mut env = task.build(args.num_envs.max(1))?;
+            let result = env_throughput(env.as_mut(), env_steps)?;
+            eprintln!(
+                "env {} x{}: {:.3e} steps/s",
+                result.env_id, result.num_envs, result.steps_per_second
+            );
+            envs.push(result);
+        }
+    }
+    if args.json {
+        let json = serde_json::json!({ "ppo_update": updates, "matmul": matmuls, "env": envs });
+        println!("{}", serde_json::to_string_pretty(&json)?);
+    }
+    Ok(())
 }

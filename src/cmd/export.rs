@@ -1,8 +1,8 @@
 //! `rlpkg export`: writes a run's policy as an ONNX graph (normaliser and action transform
 //! included), then loads the written file in tract and checks it against the run's policy.
 //!
-//! Also home of [`eval_onnx_policy`], which `rlpkg eval --policy` calls to run an exported file in
-//! its environment.
+//! The policy is read from the run's latest checkpoint with the spec of its task; the task's
+//! environment is built only to compare the two on observations the policy visits.
 
 use std::path::{Path, PathBuf};
 
@@ -10,15 +10,16 @@ use anyhow::Context;
 use clap::Args;
 use rlpkg_agents::export::check::{check_path, CheckData};
 use rlpkg_agents::export::runtime::{
-    compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes_in,
-    run_episodes_keeping, Latency,
+    compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes,
+    Latency,
 };
 use rlpkg_agents::export::{write_onnx, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
 use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
-use rlpkg_agents::{AgentError, Trainer};
+use rlpkg_vec_env::VecEnv;
 use serde::Serialize;
 
-use crate::error::input_error;
+use crate::error::{agent_error, export_error, input_error};
+use crate::tasks::{Task, Training};
 
 /// Upper bound of `--latency`: each run is timed and kept for the median.
 const MAX_LATENCY_RUNS: u64 = 1_000_000;
@@ -115,8 +116,14 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
             run.display()
         )));
     }
-    let trainer = Trainer::resume(run).map_err(agent_error)?;
-    let burn = TrainedPolicy::from_trainer(&trainer);
+    let training = Training::of_run(run).map_err(agent_error)?;
+    let burn = TrainedPolicy::load(
+        run,
+        &training.config,
+        &training.config_hash(),
+        &training.spec,
+    )
+    .map_err(agent_error)?;
     let mut graph = burn.policy_graph();
     if args.with_value && graph.critic.is_none() {
         return Err(input_error(format!(
@@ -146,15 +153,14 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     let mut summary = export_policy(&graph, &out, &options)?;
     // The environment the run trained on: 100 episodes of a classic-control task, 8 of a
     // simulated one (each copy is a simulator lane).
-    let config = trainer.config();
-    let episodes = if config.transport.is_some() { 8 } else { 100 };
-    let mut env = rlpkg_env::make_with(
-        &config.run.env,
-        episodes,
-        config.transport.as_ref(),
-        &config.source,
-    )
-    .map_err(|e| input_error(format!("{}: {e}", run.display())))?;
+    let episodes = match training.task {
+        Task::Transport { .. } => 8,
+        Task::CartPole | Task::Pendulum => 100,
+    };
+    let mut env = training
+        .task
+        .build(episodes)
+        .map_err(|e| input_error(format!("{}: {e}", run.display())))?;
     summary.burn = Some(compare_with_burn(
         &burn,
         &graph,
@@ -168,15 +174,6 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
         print_summary(&summary);
     }
     Ok(())
-}
-
-/// Trainer errors in what the user gave (run folder, config) exit with 2.
-fn agent_error(err: AgentError) -> anyhow::Error {
-    if err.is_input_error() {
-        input_error(err)
-    } else {
-        err.into()
-    }
 }
 
 /// How the written file compares with the trainer's burn policy.
@@ -200,9 +197,9 @@ fn compare_with_burn(
     graph: &PolicyGraph,
     out: &Path,
     rows: usize,
-    env: &mut dyn rlpkg_env::VecEnv,
+    env: &mut dyn VecEnv,
 ) -> anyhow::Result<BurnComparison> {
-    let onnx = OnnxPolicy::load(out).map_err(wrap_export_error)?;
+    let onnx = OnnxPolicy::load(out).map_err(|e| export_error(e, None))?;
     let action_dim = graph.action_dim();
     let diff = |obs: &[f32], n: usize| -> anyhow::Result<f32> {
         let (diff, row) = max_abs_diff(&burn.act(obs, n), &onnx.act(obs, n)?, action_dim);
@@ -217,7 +214,7 @@ fn compare_with_burn(
     };
     let random = random_observations(graph, rows, 0);
     let random_max_abs_diff = diff(&random, rows)?;
-    let visited = run_episodes_in(env, 0, rows, |obs, n| {
+    let visited = run_episodes(env, 0, rows, |obs, n| {
         Ok::<_, ExportError>(burn.act(obs, n))
     })?
     .visited_obs;
@@ -241,8 +238,8 @@ pub fn export_policy(
     options: &ExportOptions,
 ) -> anyhow::Result<ExportSummary> {
     check_out_path(out)?;
-    let bytes = write_onnx(graph, out).map_err(wrap_export_error)?;
-    let policy = OnnxPolicy::load(out).map_err(wrap_export_error)?;
+    let bytes = write_onnx(graph, out).map_err(|e| export_error(e, None))?;
+    let policy = OnnxPolicy::load(out).map_err(|e| export_error(e, None))?;
     let rows = options.verify_rows;
     let obs = random_observations(graph, rows, 0);
     let agreement = compare_with_reference(graph, &policy, &obs, rows)?;
@@ -297,17 +294,6 @@ fn check_out_path(out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Inconsistent graphs are the trainer's fault (exit 1); unreadable or unwritable files are the
-/// user's (exit 2).
-fn wrap_export_error(err: ExportError) -> anyhow::Error {
-    match err {
-        ExportError::Io { .. } | ExportError::NotOnnx { .. } | ExportError::Metadata { .. } => {
-            input_error(err)
-        }
-        other => other.into(),
-    }
-}
-
 fn print_summary(s: &ExportSummary) {
     println!(
         "wrote {} ({} bytes) for {}",
@@ -341,77 +327,11 @@ fn print_summary(s: &ExportSummary) {
     }
 }
 
-/// Result of [`eval_onnx_policy`].
-#[derive(Debug, Serialize)]
-pub struct OnnxEvalSummary {
-    /// The ONNX file evaluated.
-    pub policy: PathBuf,
-    /// Environment id read from the file's metadata.
-    pub env_id: String,
-    /// Number of deterministic episodes.
-    pub episodes: usize,
-    /// Seed of the evaluation environments.
-    pub seed: u64,
-    /// Mean undiscounted return.
-    pub mean_return: f64,
-    /// Standard deviation of the returns.
-    pub std_return: f64,
-    /// Mean episode length in steps.
-    pub mean_length: f64,
-}
-
-/// `rlpkg eval --policy policy.onnx`: runs the exported file through tract in `episodes`
-/// deterministic episodes of the environment named in its metadata (`env_id`).
-pub fn eval_onnx_policy(
-    path: &Path,
-    episodes: usize,
-    seed: u64,
-) -> anyhow::Result<OnnxEvalSummary> {
-    if episodes == 0 {
-        return Err(input_error("--episodes: expected at least 1"));
-    }
-    let policy = OnnxPolicy::load(path).map_err(|e| match e {
-        ExportError::Io { .. } | ExportError::NotOnnx { .. } | ExportError::Runtime { .. } => {
-            input_error(e)
-        }
-        other => other.into(),
-    })?;
-    let env_id = policy.metadata().get("env_id").cloned().ok_or_else(|| {
-        input_error(format!(
-            "{}: metadata key `env_id` missing (expected a file written by `rlpkg export`)",
-            path.display()
-        ))
-    })?;
-    // The layer widths of an ONNX file are not read here; 1024 per row stands for the hidden layers.
-    rlpkg_agents::config::check_memory(
-        &format!("--episodes {episodes}"),
-        evaluation_memory_bytes(episodes, policy.obs_dim(), 1024),
-    )
-    .map_err(input_error)?;
-    let stats = run_episodes_keeping(&env_id, episodes, seed, 0, |obs, n| policy.act(obs, n))
-        .map_err(|e| match e {
-            ExportError::Env(_) | ExportError::ObsShape { .. } => {
-                input_error(format!("{}: {e}", path.display()))
-            }
-            other => other.into(),
-        })?;
-    Ok(OnnxEvalSummary {
-        policy: path.to_path_buf(),
-        env_id,
-        episodes,
-        seed,
-        mean_return: stats.mean_return(),
-        std_return: stats.std_return(),
-        mean_length: stats.lengths.iter().sum::<usize>() as f64 / episodes as f64,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::error::exit_code;
-    use rlpkg_agents::export::random::{cartpole_like, pendulum_like};
-    use rlpkg_agents::export::runtime::run_episodes;
+    use rlpkg_agents::export::random::pendulum_like;
 
     fn options() -> ExportOptions {
         ExportOptions {
@@ -444,41 +364,6 @@ mod tests {
             let err = export_policy(&pendulum_like(2), &out, &options()).unwrap_err();
             assert_eq!(exit_code(&err), 2, "{err:#}");
             assert!(format!("{err:#}").contains("--out"), "{err:#}");
-        }
-    }
-
-    #[test]
-    fn eval_runs_the_exported_file_like_the_reference() {
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("cartpole.onnx");
-        let graph = cartpole_like(3);
-        export_policy(&graph, &out, &options()).unwrap();
-        let summary = eval_onnx_policy(&out, 5, 11).unwrap();
-        let reference = run_episodes("CartPole-v1", 5, 11, |obs, n| {
-            Ok::<_, ExportError>(graph.act(obs, n))
-        })
-        .unwrap();
-        assert_eq!(summary.env_id, "CartPole-v1");
-        assert_eq!(summary.mean_return, reference.mean_return());
-        assert!(summary.mean_length >= 1.0);
-    }
-
-    #[test]
-    fn eval_rejects_bad_files_with_exit_code_2() {
-        let dir = tempfile::tempdir().unwrap();
-        let garbage = dir.path().join("garbage.onnx");
-        std::fs::write(&garbage, b"not a model").unwrap();
-        let mut unknown_env = pendulum_like(4);
-        unknown_env.meta.env_id = "MountainCar-v0".into();
-        let unknown = dir.path().join("unknown.onnx");
-        export_policy(&unknown_env, &unknown, &options()).unwrap();
-        for path in [dir.path().join("absent.onnx"), garbage, unknown] {
-            let err = eval_onnx_policy(&path, 2, 0).unwrap_err();
-            assert_eq!(exit_code(&err), 2, "{err:#}");
-            assert!(
-                format!("{err:#}").contains(&*path.to_string_lossy()),
-                "{err:#}"
-            );
         }
     }
 }

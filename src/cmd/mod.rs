@@ -4,8 +4,6 @@ pub mod bench;
 pub mod calibrate;
 pub mod data;
 pub mod eval;
-pub mod eval_params;
-pub mod eval_transport;
 pub mod export;
 pub mod simulate;
 pub mod train;

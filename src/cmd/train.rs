@@ -1,16 +1,19 @@
 //! `rlpkg train`: PPO on a TOML configuration, or `--resume` of an earlier run; the trained policy
 //! is exported as ONNX (`<run>/policy.onnx`) at the end.
+//!
+//! The task's environment is built here from the configuration ([`crate::tasks`]) and handed to
+//! the trainer.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use rlpkg_agents::config::check_memory;
 use rlpkg_agents::runners::{clean_leftovers, POLICY_FILE};
-use rlpkg_agents::{load_policy_graph, AgentError, TrainConfig, Trainer};
+use rlpkg_agents::TrainedPolicy;
 
 use crate::cmd::export::{export_policy, ExportOptions};
-use crate::error::input_error;
+use crate::error::{agent_error, input_error};
+use crate::tasks::Training;
 
 #[derive(Args)]
 #[command(
@@ -41,24 +44,18 @@ pub struct TrainArgs {
     pub quiet: bool,
 }
 
-/// Errors in what the user gave exit with code 2.
-fn wrap(err: AgentError) -> anyhow::Error {
-    if err.is_input_error() {
-        input_error(err)
-    } else {
-        err.into()
-    }
-}
-
 /// Runs `rlpkg train`.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let (mut trainer, run_dir) = match (&args.resume, &args.config) {
-        (Some(run_dir), _) => (Trainer::resume(run_dir).map_err(wrap)?, run_dir.clone()),
+        (Some(run_dir), _) => {
+            let mut trainer = Training::of_run(run_dir)
+                .and_then(Training::trainer)
+                .map_err(agent_error)?;
+            trainer.load_checkpoint(run_dir).map_err(agent_error)?;
+            (trainer, run_dir.clone())
+        }
         (None, Some(config_path)) => {
-            let (config, text) = TrainConfig::load(config_path).map_err(|e| match e {
-                AgentError::Io { .. } => input_error(e),
-                other => wrap(other),
-            })?;
+            let training = Training::load(config_path).map_err(agent_error)?;
             let name = match &args.name {
                 Some(name) => name.clone(),
                 None => default_name(config_path)?,
@@ -70,8 +67,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
                 )));
             }
             let run_dir = args.out_dir.join(name);
-            let trainer = Trainer::new(config, text).map_err(wrap)?;
-            trainer.create_run_dir(&run_dir).map_err(wrap)?;
+            let trainer = training.trainer().map_err(agent_error)?;
+            trainer.create_run_dir(&run_dir).map_err(agent_error)?;
             (trainer, run_dir)
         }
         (None, None) => {
@@ -82,7 +79,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     };
     // What a run stopped at once (a second signal, a kill) left behind; a new run's folder may
     // hold the leftovers of one stopped before its configuration was written.
-    for path in clean_leftovers(&run_dir).map_err(wrap)? {
+    for path in clean_leftovers(&run_dir).map_err(agent_error)? {
         eprintln!("removed the leftover temporary {}", path.display());
     }
     let stop_after = args.stop_after.map(|s| s as usize);
@@ -96,7 +93,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             !args.quiet,
             &crate::interrupt::requested,
         )
-        .map_err(wrap)
+        .map_err(agent_error)
         .with_context(|| format!("training {}", run_dir.display()))?;
     let total = trainer.config().num_updates();
     println!(
@@ -116,7 +113,15 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         return Err(crate::interrupt::Interrupted.into());
     }
     if summary.updates == total && !args.no_export {
-        let mut graph = load_policy_graph(&run_dir).map_err(wrap)?;
+        // The checkpoint just written, read back as `rlpkg export` reads it.
+        let policy = TrainedPolicy::load(
+            &run_dir,
+            trainer.config(),
+            &trainer.config_hash(),
+            trainer.spec(),
+        )
+        .map_err(agent_error)?;
+        let mut graph = policy.policy_graph();
         // Like `rlpkg export` without --with-value: the actor (and normaliser) only.
         graph.critic = None;
         let out = run_dir.join(POLICY_FILE);
@@ -158,158 +163,4 @@ fn default_name(config_path: &Path) -> anyhow::Result<String> {
                 config_path.display()
             ))
         })
-}
-
-/// Arguments of `rlpkg bench ppo`.
-#[derive(Args)]
-pub struct PpoBenchArgs {
-    /// burn backends to measure: flex, ndarray, or both (comma-separated).
-    #[arg(long, default_value = "flex,ndarray", value_delimiter = ',')]
-    pub backend: Vec<String>,
-    /// Samples per minibatch.
-    #[arg(long, default_value_t = 4096)]
-    pub minibatch: usize,
-    /// Timed minibatches per backend (at most 10000).
-    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
-    pub minibatches: u64,
-    /// Observation width.
-    #[arg(long, default_value_t = 48)]
-    pub obs_dim: usize,
-    /// Action width.
-    #[arg(long, default_value_t = 6)]
-    pub action_dim: usize,
-    /// Hidden widths of actor and critic (comma-separated).
-    #[arg(long, default_value = "256,256", value_delimiter = ',')]
-    pub hidden: Vec<usize>,
-    /// Lockstep steps of the environment benchmark (0 skips it; at most 10 million).
-    #[arg(long, default_value_t = 20000, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
-    pub env_steps: u64,
-    /// Copies in the environment benchmark.
-    #[arg(long, default_value_t = 64)]
-    pub num_envs: usize,
-    /// Print the results as JSON.
-    #[arg(long)]
-    pub json: bool,
-}
-
-/// Bytes of the PPO benchmark: actor and critic with gradients and Adam moments (x6), and one
-/// minibatch's data and activations with their gradients.
-fn ppo_bench_memory_bytes(args: &PpoBenchArgs) -> f64 {
-    let network = |out: usize| {
-        let mut widths = vec![args.obs_dim];
-        widths.extend_from_slice(&args.hidden);
-        widths.push(out);
-        widths
-            .windows(2)
-            .map(|w| (w[0] as f64 + 1.0) * w[1] as f64)
-            .sum::<f64>()
-    };
-    let parameters = network(args.action_dim) + network(1);
-    let widths = 2 * args.hidden.iter().sum::<usize>() + args.obs_dim + args.action_dim;
-    let per_row = 4 * widths + 2 * (args.obs_dim + args.action_dim + 6);
-    4.0 * (6.0 * parameters + args.minibatch as f64 * per_row as f64)
-}
-
-/// `rlpkg bench ppo`: PPO update throughput (forward + backward + global clip + Adam) per backend,
-/// and CartPole / Pendulum steps per second.
-pub fn run_bench(args: PpoBenchArgs) -> anyhow::Result<()> {
-    use rlpkg_agents::bench::{
-        env_throughput, matmul_throughput, ppo_update_throughput, PpoBenchConfig,
-    };
-    if args.minibatch == 0 || args.obs_dim == 0 || args.action_dim == 0 {
-        return Err(input_error(
-            "--minibatch, --obs-dim and --action-dim: expected at least 1",
-        ));
-    }
-    if args.hidden.is_empty() || args.hidden.contains(&0) {
-        return Err(input_error(
-            "--hidden: expected widths of at least 1, e.g. 256,256",
-        ));
-    }
-    check_memory(
-        &format!(
-            "--minibatch {} --hidden {:?} --obs-dim {} --action-dim {}",
-            args.minibatch, args.hidden, args.obs_dim, args.action_dim
-        ),
-        ppo_bench_memory_bytes(&args),
-    )
-    .map_err(input_error)?;
-    let (minibatches, env_steps) = (args.minibatches as usize, args.env_steps as usize);
-    if env_steps > 0 {
-        check_memory(
-            &format!("--num-envs {}", args.num_envs),
-            rlpkg_agents::runners::evaluation_memory_bytes(args.num_envs, 4, 0),
-        )
-        .map_err(input_error)?;
-    }
-    let mut updates = Vec::new();
-    let mut matmuls = Vec::new();
-    for name in &args.backend {
-        let backend = rlpkg_agents::Backend::parse(name)
-            .ok_or_else(|| input_error(format!("--backend {name}: expected flex or ndarray")))?;
-        let result = ppo_update_throughput(&PpoBenchConfig {
-            obs_dim: args.obs_dim,
-            action_dim: args.action_dim,
-            hidden: args.hidden.clone(),
-            minibatch: args.minibatch,
-            minibatches,
-            backend,
-        });
-        let shares = &result.shares;
-        eprintln!(
-            "ppo update [{}] {}-{:?}-{} ({} parameters), minibatch {}: {:.0} samples/s ({:.1} ms/minibatch; forward {:.0} %, backward {:.0} %, optimiser {:.0} %, batching {:.0} %; {:.0} samples per CPU second)",
-            result.backend,
-            args.obs_dim,
-            args.hidden,
-            args.action_dim,
-            result.parameters,
-            args.minibatch,
-            result.samples_per_second,
-            result.ms_per_minibatch,
-            100.0 * shares.forward,
-            100.0 * shares.backward,
-            100.0 * shares.optimiser,
-            100.0 * shares.batch,
-            result.samples_per_cpu_second.unwrap_or(f64::NAN),
-        );
-        updates.push(result);
-        // The layer products of the update: the forward x W of the first two layers and the
-        // weight gradient x^T dz of the second.
-        let (m, h0) = (args.minibatch, args.hidden[0]);
-        let h1 = args.hidden.get(1).copied().unwrap_or(h0);
-        for (shape, transposed) in [
-            ([m, args.obs_dim, h0], false),
-            ([m, h0, h1], false),
-            ([h0, m, h1], true),
-        ] {
-            let result = matmul_throughput(backend, shape, transposed, 5);
-            eprintln!(
-                "matmul [{}] {}x{}{} x {}x{}: {:.1} GFLOP/s",
-                result.backend,
-                shape[0],
-                shape[1],
-                if transposed { " (transposed view)" } else { "" },
-                shape[1],
-                shape[2],
-                result.gflops
-            );
-            matmuls.push(result);
-        }
-    }
-    let mut envs = Vec::new();
-    if env_steps > 0 {
-        for id in rlpkg_env::KNOWN_IDS {
-            let result = env_throughput(id, args.num_envs.max(1), env_steps)?;
-            eprintln!(
-                "env {} x{}: {:.3e} steps/s",
-                result.env_id, result.num_envs, result.steps_per_second
-            );
-            envs.push(result);
-        }
-    }
-    if args.json {
-        let json = serde_json::json!({ "ppo_update": updates, "matmul": matmuls, "env": envs });
-        println!("{}", serde_json::to_string_pretty(&json)?);
-    }
-    Ok(())
 }

@@ -70,5 +70,5 @@ pub enum ExportError {
     },
     /// The environment named in the policy's metadata could not be built or stepped.
     #[error("environment: {0}")]
-    Env(#[from] rlpkg_env::EnvError),
+    Env(#[from] rlpkg_vec_env::EnvError),
 }

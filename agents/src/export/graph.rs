@@ -123,7 +123,11 @@ pub struct PolicyMeta {
 
 impl PolicyMeta {
     /// Names, units and bounds of `spec`'s observations and actions, with provenance.
-    pub fn from_spec(spec: &rlpkg_env::EnvSpec, rlpkg_version: &str, config_hash: &str) -> Self {
+    pub fn from_spec(
+        spec: &rlpkg_vec_env::EnvSpec,
+        rlpkg_version: &str,
+        config_hash: &str,
+    ) -> Self {
         Self {
             env_id: spec.id.clone(),
             obs_names: spec.observation.names.clone(),

@@ -398,50 +398,23 @@ impl EpisodeStats {
     }
 }
 
-/// Runs `episodes` deterministic episodes of environment `env_id`, one per environment copy, all
-/// in lockstep (copy `i` seeded from `seed + i`), choosing actions with `act(obs, rows)`.
+/// Runs one deterministic episode per copy of `env`, all in lockstep (copy `i` seeded from
+/// `seed + i`), choosing actions with `act(obs, rows)`; keeps at most `keep_rows` visited
+/// observations (an evaluation of many episodes needs none, and keeping them all would grow with
+/// episodes x length).
 pub fn run_episodes<E>(
-    env_id: &str,
-    episodes: usize,
-    seed: u64,
-    act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
-) -> Result<EpisodeStats, E>
-where
-    E: From<rlpkg_env::EnvError>,
-{
-    run_episodes_keeping(env_id, episodes, seed, usize::MAX, act)
-}
-
-/// [`run_episodes`] keeping at most `keep_rows` visited observations (an evaluation of many
-/// episodes needs none, and keeping them all would grow with episodes x length).
-pub fn run_episodes_keeping<E>(
-    env_id: &str,
-    episodes: usize,
-    seed: u64,
-    keep_rows: usize,
-    act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
-) -> Result<EpisodeStats, E>
-where
-    E: From<rlpkg_env::EnvError>,
-{
-    let mut env = rlpkg_env::make(env_id, episodes)?;
-    run_episodes_in(env.as_mut(), seed, keep_rows, act)
-}
-
-/// [`run_episodes_keeping`] on an environment built by the caller: one episode per copy.
-pub fn run_episodes_in<E>(
-    env: &mut dyn rlpkg_env::VecEnv,
+    env: &mut dyn rlpkg_vec_env::VecEnv,
     seed: u64,
     keep_rows: usize,
     mut act: impl FnMut(&[f32], usize) -> Result<Vec<f32>, E>,
 ) -> Result<EpisodeStats, E>
 where
-    E: From<rlpkg_env::EnvError>,
+    E: From<rlpkg_vec_env::EnvError>,
 {
     let episodes = env.num_envs();
     let obs_dim = env.spec().observation.dim();
     let mut buffers = env.buffers();
-    env.reset(seed, &mut buffers);
+    env.reset(seed, &mut buffers)?;
     let mut returns = vec![0.0f32; episodes];
     let mut lengths = vec![0usize; episodes];
     let mut running = vec![true; episodes];

@@ -230,8 +230,9 @@ fn latency_is_measured() {
 fn episodes_with_the_onnx_policy_match_the_reference() {
     let graph = cartpole_like(19);
     let policy = load(&graph);
-    let onnx = runtime::run_episodes("CartPole-v1", 6, 3, |obs, n| policy.act(obs, n)).unwrap();
-    let reference = runtime::run_episodes("CartPole-v1", 6, 3, |obs, n| {
+    let mut env = rlpkg_vec_env::CartPole::new(6);
+    let onnx = runtime::run_episodes(&mut env, 3, usize::MAX, |obs, n| policy.act(obs, n)).unwrap();
+    let reference = runtime::run_episodes(&mut env, 3, usize::MAX, |obs, n| {
         Ok::<_, ExportError>(graph.act(obs, n))
     })
     .unwrap();
@@ -261,7 +262,8 @@ fn trained(env: &str, transform: &str) -> crate::runners::TrainedPolicy {
         .replace("CartPole-v1", env)
         .replace("\"clip\"", &format!("\"{transform}\""));
     let config = crate::TrainConfig::parse(&text, Path::new("test.toml")).unwrap();
-    let mut trainer = crate::Trainer::new(config, text).unwrap();
+    let env = crate::config::tests::classic_env(env, config.run.num_envs);
+    let mut trainer = crate::Trainer::new(config, text, env).unwrap();
     trainer.run_update().unwrap();
     crate::runners::TrainedPolicy::from_trainer(&trainer)
 }
@@ -281,7 +283,8 @@ fn burn_policy_matches_tract_on_random_and_visited_observations() {
         );
         let onnx = load(&graph);
         let random = random_observations(&graph, ROWS, 21);
-        let visited = runtime::run_episodes(env, 100, 22, |obs, n| {
+        let mut episodes = crate::config::tests::classic_env(env, 100);
+        let visited = runtime::run_episodes(episodes.as_mut(), 22, usize::MAX, |obs, n| {
             Ok::<_, ExportError>(burn.act(obs, n))
         })
         .unwrap()

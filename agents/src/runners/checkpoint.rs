@@ -14,14 +14,15 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use burn::module::Module;
-use rlpkg_env::EnvState;
+use rlpkg_vec_env::{EnvSpec, EnvState};
 use serde::{Deserialize, Serialize};
 
+use super::policy::{initial_actor_critic, model_rng};
 use super::tensorboard::EventsPosition;
-use super::Trainer;
+use super::{TrainedPolicy, Trainer};
 use crate::config::{config_hash, TrainConfig};
-use crate::modules::RunningMeanStd;
-use crate::AgentError;
+use crate::modules::{ActorCritic, RunningMeanStd};
+use crate::{AgentError, Backend};
 
 /// The configuration's copy in a run folder.
 pub const CONFIG_FILE: &str = "config.toml";
@@ -70,7 +71,7 @@ struct TrainerState {
     update: usize,
     global_step: u64,
     learning_rate: u64,
-    rng: [u64; rlpkg_env::RNG_WORDS],
+    rng: [u64; rlpkg_vec_env::RNG_WORDS],
     obs_stats: Option<StatsBits>,
     reward_stats: Option<StatsBits>,
     reward_returns: Option<Vec<u64>>,
@@ -121,6 +122,18 @@ fn checkpoint_error(path: &Path, reason: impl Into<String>) -> AgentError {
         path: path.into(),
         reason: reason.into(),
     }
+}
+
+/// The configuration's copy in `run_dir`, which must exist (it makes the folder a run folder).
+pub fn run_config_path(run_dir: &Path) -> Result<PathBuf, AgentError> {
+    let config_path = run_dir.join(CONFIG_FILE);
+    if !config_path.exists() {
+        return Err(checkpoint_error(
+            run_dir,
+            format!("not a run folder (expected {})", config_path.display()),
+        ));
+    }
+    Ok(config_path)
 }
 
 /// The newest complete checkpoint folder of `run_dir`: the `update_NNNNNN` folder named in
@@ -279,7 +292,7 @@ impl Trainer {
             update: self.update,
             global_step: self.global_step,
             learning_rate: self.ppo.learning_rate.to_bits(),
-            rng: rlpkg_env::rng_to_words(&self.rng),
+            rng: rlpkg_vec_env::rng_to_words(&self.rng),
             obs_stats: self.obs_stats.as_ref().map(StatsBits::from),
             reward_stats: self
                 .reward_norm
@@ -304,45 +317,12 @@ impl Trainer {
         }
     }
 
-    /// Rebuilds the trainer of `run_dir` from its configuration copy and latest checkpoint.
-    pub fn resume(run_dir: &Path) -> Result<Self, AgentError> {
-        let config_path = run_dir.join(CONFIG_FILE);
-        if !config_path.exists() {
-            return Err(checkpoint_error(
-                run_dir,
-                format!("not a run folder (expected {})", config_path.display()),
-            ));
-        }
-        let (config, text) = TrainConfig::load(&config_path)?;
-        let mut trainer = Trainer::new(config, text)?;
-        trainer.load_checkpoint(run_dir)?;
-        Ok(trainer)
-    }
-
     /// Loads the latest checkpoint of `run_dir` into this trainer, freshly built from the same
-    /// configuration (and, for [`Trainer::with_env`], an environment built the same way).
+    /// configuration on an environment built the same way (continues the run).
     pub fn load_checkpoint(&mut self, run_dir: &Path) -> Result<(), AgentError> {
-        let config_path = run_dir.join(CONFIG_FILE);
         let trainer = self;
-        let checkpoint = latest_checkpoint(run_dir)?;
-        let state_path = checkpoint.join(STATE);
-        let json = std::fs::read(&state_path).map_err(|e| AgentError::io(&state_path, e))?;
-        let state: TrainerState = serde_json::from_slice(&json).map_err(|e| {
-            checkpoint_error(&state_path, format!("malformed checkpoint state: {e}"))
-        })?;
-        if state.config_hash != trainer.config_hash() {
-            return Err(checkpoint_error(
-                &config_path,
-                "differs from the configuration the checkpoint was trained with",
-            ));
-        }
-        let model_path = checkpoint.join(MODEL);
-        trainer.ppo.model = trainer
-            .ppo
-            .model
-            .clone()
-            .try_load_file(&model_path)
-            .map_err(|e| checkpoint_error(&model_path, e.to_string()))?;
+        let (checkpoint, state_path, state) = read_state(run_dir, &trainer.config_hash())?;
+        trainer.ppo.model = load_model(trainer.ppo.model.clone(), &checkpoint)?;
         let optim_path = checkpoint.join(OPTIMIZER);
         trainer.ppo.optimizer = trainer
             .ppo
@@ -350,48 +330,8 @@ impl Trainer {
             .clone()
             .load(&optim_path)
             .map_err(|e| checkpoint_error(&optim_path, e.to_string()))?;
-        trainer.check_counters(&state, &checkpoint, &state_path)?;
+        check_counters(&trainer.config, &state, &checkpoint, &state_path)?;
         trainer.restore_state(state, &state_path)
-    }
-
-    /// The counters of `state` must agree with the configuration and the folder they are in: every
-    /// update adds `num_envs x rollout_steps` steps, a run never goes past its last update, and the
-    /// folder is named after its update.
-    fn check_counters(
-        &self,
-        state: &TrainerState,
-        checkpoint: &Path,
-        path: &Path,
-    ) -> Result<(), AgentError> {
-        let folder = checkpoint
-            .file_name()
-            .and_then(|n| n.to_str())
-            .and_then(update_number);
-        let num_updates = self.config.num_updates();
-        let expected_steps = state.update as u64 * self.config.batch_size() as u64;
-        let problem = if state.update == 0 || state.update > num_updates {
-            Some(format!(
-                "`update` = {}: expected an update in [1, {num_updates}] (the configuration's run length)",
-                state.update
-            ))
-        } else if folder != Some(state.update) {
-            Some(format!(
-                "`update` = {} does not match the checkpoint folder {}",
-                state.update,
-                checkpoint.display()
-            ))
-        } else if state.global_step != expected_steps {
-            Some(format!(
-                "`global_step` = {}: expected update x run.num_envs x ppo.rollout_steps = {expected_steps}",
-                state.global_step
-            ))
-        } else {
-            None
-        };
-        match problem {
-            Some(reason) => Err(checkpoint_error(path, reason)),
-            None => Ok(()),
-        }
     }
 
     fn restore_state(&mut self, state: TrainerState, path: &Path) -> Result<(), AgentError> {
@@ -417,7 +357,7 @@ impl Trainer {
         self.update = state.update;
         self.global_step = state.global_step;
         self.ppo.learning_rate = f64::from_bits(state.learning_rate);
-        self.rng = rlpkg_env::rng_from_words(&state.rng);
+        self.rng = rlpkg_vec_env::rng_from_words(&state.rng);
         match (&mut self.obs_stats, &state.obs_stats) {
             (Some(stats), Some(saved)) if saved.mean.len() == dim => saved.restore(stats),
             (None, None) => {}
@@ -469,6 +409,122 @@ impl Trainer {
         self.recent_returns = floats32(&state.recent_returns).into();
         self.events = state.events;
         Ok(())
+    }
+}
+
+/// The state of the latest checkpoint of `run_dir`, which must have been written for the
+/// configuration hashed `config_hash`; with the checkpoint folder and the state file.
+fn read_state(
+    run_dir: &Path,
+    config_hash: &str,
+) -> Result<(PathBuf, PathBuf, TrainerState), AgentError> {
+    let checkpoint = latest_checkpoint(run_dir)?;
+    let state_path = checkpoint.join(STATE);
+    let json = std::fs::read(&state_path).map_err(|e| AgentError::io(&state_path, e))?;
+    let state: TrainerState = serde_json::from_slice(&json)
+        .map_err(|e| checkpoint_error(&state_path, format!("malformed checkpoint state: {e}")))?;
+    if state.config_hash != config_hash {
+        return Err(checkpoint_error(
+            &run_dir.join(CONFIG_FILE),
+            "differs from the configuration the checkpoint was trained with",
+        ));
+    }
+    Ok((checkpoint, state_path, state))
+}
+
+/// `model` with the weights saved in `checkpoint`.
+fn load_model(model: ActorCritic, checkpoint: &Path) -> Result<ActorCritic, AgentError> {
+    let model_path = checkpoint.join(MODEL);
+    model
+        .try_load_file(&model_path)
+        .map_err(|e| checkpoint_error(&model_path, e.to_string()))
+}
+
+/// The counters of `state` must agree with `config` and the folder they are in: every update adds
+/// `num_envs x rollout_steps` steps, a run never goes past its last update, and the folder is
+/// named after its update.
+fn check_counters(
+    config: &TrainConfig,
+    state: &TrainerState,
+    checkpoint: &Path,
+    path: &Path,
+) -> Result<(), AgentError> {
+    let folder = checkpoint
+        .file_name()
+        .and_then(|n| n.to_str())
+        .and_then(update_number);
+    let num_updates = config.num_updates();
+    let expected_steps = state.update as u64 * config.batch_size() as u64;
+    let problem = if state.update == 0 || state.update > num_updates {
+        Some(format!(
+            "`update` = {}: expected an update in [1, {num_updates}] (the configuration's run length)",
+            state.update
+        ))
+    } else if folder != Some(state.update) {
+        Some(format!(
+            "`update` = {} does not match the checkpoint folder {}",
+            state.update,
+            checkpoint.display()
+        ))
+    } else if state.global_step != expected_steps {
+        Some(format!(
+            "`global_step` = {}: expected update x run.num_envs x ppo.rollout_steps = {expected_steps}",
+            state.global_step
+        ))
+    } else {
+        None
+    };
+    match problem {
+        Some(reason) => Err(checkpoint_error(path, reason)),
+        None => Ok(()),
+    }
+}
+
+impl TrainedPolicy {
+    /// The policy of the latest checkpoint of `run_dir`, trained with `config` (whose text hashes
+    /// to `config_hash`) on an environment described by `spec`; no environment is built.
+    pub fn load(
+        run_dir: &Path,
+        config: &TrainConfig,
+        config_hash: &str,
+        spec: &EnvSpec,
+    ) -> Result<Self, AgentError> {
+        let (checkpoint, state_path, state) = read_state(run_dir, config_hash)?;
+        let device = Backend::DEFAULT.device();
+        let (model, transform) = initial_actor_critic(
+            config,
+            spec,
+            &mut model_rng(config.run.seed),
+            &device.clone().autodiff(),
+        );
+        let model = load_model(model, &checkpoint)?;
+        check_counters(config, &state, &checkpoint, &state_path)?;
+        let norm = &config.normalization;
+        let dim = spec.observation.dim();
+        let normaliser = match (norm.observations, &state.obs_stats) {
+            (true, Some(saved)) if saved.mean.len() == dim => {
+                let mut stats = RunningMeanStd::new(dim);
+                saved.restore(&mut stats);
+                Some(stats.to_obs_normaliser(norm.epsilon, norm.clip_obs))
+            }
+            (false, None) => None,
+            _ => {
+                return Err(checkpoint_error(
+                    &state_path,
+                    "observation statistics do not match",
+                ))
+            }
+        };
+        Ok(Self {
+            model: model.valid(),
+            normaliser,
+            transform,
+            spec: spec.clone(),
+            config_hash: config_hash.to_string(),
+            update: state.update,
+            global_step: state.global_step,
+            device,
+        })
     }
 }
 

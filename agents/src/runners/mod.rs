@@ -5,11 +5,11 @@ mod on_policy;
 mod policy;
 mod tensorboard;
 
-pub use checkpoint::{clean_leftovers, latest_checkpoint, CONFIG_FILE, POLICY_FILE};
-pub use on_policy::{TrainSummary, Trainer, UpdateLog, UpdateTiming};
-pub use policy::{
-    evaluate_run, evaluation_memory_bytes, load_policy_graph, EvalSummary, TrainedPolicy,
+pub use checkpoint::{
+    clean_leftovers, latest_checkpoint, run_config_path, CONFIG_FILE, POLICY_FILE,
 };
+pub use on_policy::{TrainSummary, Trainer, UpdateLog, UpdateTiming};
+pub use policy::{evaluation_memory_bytes, EvalSummary, TrainedPolicy};
 pub use tensorboard::{read_scalars, EventWriter, EventsPosition, ScalarEvent};
 
 #[cfg(test)]

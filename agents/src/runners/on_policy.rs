@@ -8,14 +8,15 @@ use std::time::Instant;
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use indicatif::{ProgressBar, ProgressStyle};
-use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rlpkg_env::{EnvSpec, SpaceKind, StepBuffers, VecEnv};
+use rlpkg_vec_env::info::{InfoKind, SUCCESS};
+use rlpkg_vec_env::{EnvSpec, StepBuffers, VecEnv};
 
+use super::policy::{initial_actor_critic, model_rng};
 use super::tensorboard::{EventWriter, EventsPosition};
 use crate::algorithms::{PhaseTimes, Ppo, UpdateStats};
-use crate::config::{config_hash, ActivationName, TrainConfig, TransformName};
-use crate::export::{ActionTransform, Activation, ObsNormaliser};
+use crate::config::{config_hash, TrainConfig};
+use crate::export::{ActionTransform, ObsNormaliser};
 use crate::modules::distributions::{
     categorical_log_prob_entropy, gaussian_log_prob, one_hot, sample_categorical, sample_gaussian,
 };
@@ -41,9 +42,9 @@ pub struct UpdateLog {
     pub stats: UpdateStats,
     /// Explained variance of the rollout's values.
     pub explained_variance: f32,
-    /// The environment's per-step values ([`VecEnv::info`]) over the rollout: names under
-    /// `episode/` as a mean per finished episode (absent when none finished), the others as a
-    /// mean per step and copy.
+    /// The environment's per-step values ([`VecEnv::info`]) over the rollout, each summarised as
+    /// its name says ([`InfoKind`]): episode outcomes as a mean per finished episode (absent when
+    /// none finished), the others as a mean per step and copy.
     pub env_info: Vec<(String, f32)>,
 }
 
@@ -75,7 +76,8 @@ pub struct TrainSummary {
     pub stopped: bool,
 }
 
-/// PPO training of one configuration: environment, learner, normalisers, random stream, counters.
+/// PPO training of one configuration on the environment it is handed: learner, normalisers,
+/// random stream, counters.
 pub struct Trainer {
     pub(super) config: TrainConfig,
     pub(super) config_text: String,
@@ -108,29 +110,19 @@ pub struct Trainer {
 }
 
 impl Trainer {
-    /// A fresh run of `config` (`config_text` is the file it came from, copied into the run folder).
-    pub fn new(config: TrainConfig, config_text: String) -> Result<Self, AgentError> {
-        Self::with_backend(config, config_text, Backend::DEFAULT)
+    /// A fresh run of `config` on `env` (`config.run.num_envs` copies of the environment, reset
+    /// here with `config.run.seed`); `config_text` is the file the configuration came from,
+    /// copied into the run folder.
+    pub fn new(
+        config: TrainConfig,
+        config_text: String,
+        env: Box<dyn VecEnv>,
+    ) -> Result<Self, AgentError> {
+        Self::with_backend(config, config_text, env, Backend::DEFAULT)
     }
 
     /// A fresh run on a chosen burn backend.
     pub fn with_backend(
-        config: TrainConfig,
-        config_text: String,
-        backend: Backend,
-    ) -> Result<Self, AgentError> {
-        let env = rlpkg_env::make_with(
-            &config.run.env,
-            config.run.num_envs,
-            config.transport.as_ref(),
-            &config.source,
-        )?;
-        Self::with_env(config, config_text, env, backend)
-    }
-
-    /// A fresh run on an environment built by the caller (`config.run.num_envs` copies of it;
-    /// `config.run.env` is then only a label).
-    pub fn with_env(
         config: TrainConfig,
         config_text: String,
         mut env: Box<dyn VecEnv>,
@@ -147,43 +139,12 @@ impl Trainer {
         let device = backend.device();
         let spec = env.spec().clone();
         let mut buffers = env.buffers();
-        env.reset(config.run.seed, &mut buffers);
-        // The trainer's stream is independent of the environments' (which use seed + i).
-        let mut rng = ChaCha8Rng::seed_from_u64(config.run.seed);
-        rng.set_stream(1);
-        let (actor_out, log_std, transform) = match spec.action.kind {
-            SpaceKind::Discrete { n } => (n, None, None),
-            SpaceKind::Continuous => {
-                let (low, high) = (spec.action.low.clone(), spec.action.high.clone());
-                let transform = match config.policy.action_transform {
-                    TransformName::Clip => ActionTransform::Clip { low, high },
-                    TransformName::TanhScale => ActionTransform::TanhScale { low, high },
-                };
-                (
-                    spec.action.dim(),
-                    Some(config.policy.init_log_std),
-                    Some(transform),
-                )
-            }
-        };
-        let activation = match config.policy.activation {
-            ActivationName::Tanh => Activation::Tanh,
-            ActivationName::Relu => Activation::Relu,
-            ActivationName::Elu => Activation::Elu,
-        };
+        env.reset(config.run.seed, &mut buffers)?;
+        let mut rng = model_rng(config.run.seed);
+        let (model, transform) =
+            initial_actor_critic(&config, &spec, &mut rng, &device.clone().autodiff());
         let obs_dim = spec.observation.dim();
         let critic_obs_dim = spec.critic_obs_dim();
-        let model = ActorCritic::new(
-            obs_dim,
-            critic_obs_dim,
-            actor_out,
-            &config.policy.actor_hidden,
-            &config.policy.critic_hidden,
-            activation,
-            log_std,
-            &mut rng,
-            &device.clone().autodiff(),
-        );
         let ppo = Ppo::new(model, &config.ppo, device.clone().autodiff());
         let norm = &config.normalization;
         let num_envs = config.run.num_envs;
@@ -324,12 +285,11 @@ impl Trainer {
             .info_names()
             .iter()
             .zip(info_sums)
-            .filter_map(|(name, sum)| {
-                if name.starts_with("episode/") {
+            .filter_map(|(name, sum)| match InfoKind::of(name) {
+                InfoKind::PerEpisode => {
                     (episodes > 0.0).then(|| (name.clone(), (sum / episodes) as f32))
-                } else {
-                    Some((name.clone(), (sum / steps) as f32))
                 }
+                InfoKind::PerStep => Some((name.clone(), (sum / steps) as f32)),
             })
             .collect();
         let rollout_done = Instant::now();
@@ -529,7 +489,7 @@ impl Trainer {
             let success = log
                 .env_info
                 .iter()
-                .find(|(name, _)| name == "episode/success")
+                .find(|(name, _)| name == SUCCESS)
                 .map_or(String::new(), |(_, rate)| {
                     format!(" | success {:.0} %", 100.0 * rate)
                 });

@@ -1,17 +1,23 @@
 //! A trained policy: deterministic actions (Gaussian mean through the action transform, or the
-//! argmax of the logits), its [`PolicyGraph`] for the ONNX exporter, and run evaluation.
-
-use std::path::Path;
+//! argmax of the logits), its [`PolicyGraph`] for the ONNX exporter, and its evaluation.
+//!
+//! A policy is taken from a trainer ([`TrainedPolicy::from_trainer`]) or read from a run's
+//! checkpoint with the environment's spec alone ([`TrainedPolicy::load`]): no environment is built.
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rlpkg_vec_env::{EnvSpec, SpaceKind, VecEnv};
 use serde::Serialize;
 
 use super::Trainer;
-use crate::config::check_memory;
+use crate::config::{check_memory, ActivationName, TrainConfig, TransformName};
 use crate::export::graph::argmax;
-use crate::export::runtime::run_episodes_in;
-use crate::export::{ActionHead, ActionTransform, ObsNormaliser, PolicyGraph, PolicyMeta};
+use crate::export::runtime::run_episodes;
+use crate::export::{
+    ActionHead, ActionTransform, Activation, ObsNormaliser, PolicyGraph, PolicyMeta,
+};
 use crate::modules::ActorCritic;
 use crate::AgentError;
 
@@ -24,10 +30,65 @@ pub struct TrainedPolicy {
     /// Map from Gaussian means to action bounds (`None` for discrete actions).
     pub transform: Option<ActionTransform>,
     /// The environment's spec.
-    pub spec: rlpkg_env::EnvSpec,
+    pub spec: EnvSpec,
     /// Hash of the training configuration.
     pub config_hash: String,
-    device: Device,
+    /// Updates of training behind the policy.
+    pub update: usize,
+    /// Environment steps of training behind the policy.
+    pub global_step: u64,
+    pub(super) device: Device,
+}
+
+/// The random stream that draws a run's initial weights (and then samples its actions and
+/// minibatches); independent of the environments' streams (which use `seed + i`).
+pub(super) fn model_rng(seed: u64) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(1);
+    rng
+}
+
+/// The actor-critic `config` describes for the environment `spec` describes, with initial weights
+/// drawn from `rng` on `device`, and the map from its Gaussian samples to the action bounds
+/// (`None` for discrete actions).
+pub(super) fn initial_actor_critic(
+    config: &TrainConfig,
+    spec: &EnvSpec,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> (ActorCritic, Option<ActionTransform>) {
+    let (actor_out, log_std, transform) = match spec.action.kind {
+        SpaceKind::Discrete { n } => (n, None, None),
+        SpaceKind::Continuous => {
+            let (low, high) = (spec.action.low.clone(), spec.action.high.clone());
+            let transform = match config.policy.action_transform {
+                TransformName::Clip => ActionTransform::Clip { low, high },
+                TransformName::TanhScale => ActionTransform::TanhScale { low, high },
+            };
+            (
+                spec.action.dim(),
+                Some(config.policy.init_log_std),
+                Some(transform),
+            )
+        }
+    };
+    let activation = match config.policy.activation {
+        ActivationName::Tanh => Activation::Tanh,
+        ActivationName::Relu => Activation::Relu,
+        ActivationName::Elu => Activation::Elu,
+    };
+    let model = ActorCritic::new(
+        spec.observation.dim(),
+        spec.critic_obs_dim(),
+        actor_out,
+        &config.policy.actor_hidden,
+        &config.policy.critic_hidden,
+        activation,
+        log_std,
+        rng,
+        device,
+    );
+    (model, transform)
 }
 
 impl TrainedPolicy {
@@ -41,6 +102,8 @@ impl TrainedPolicy {
             transform: trainer.action_transform().cloned(),
             spec: trainer.spec().clone(),
             config_hash: trainer.config_hash().to_string(),
+            update: trainer.update,
+            global_step: trainer.global_step,
             device,
         }
     }
@@ -98,12 +161,6 @@ impl TrainedPolicy {
     }
 }
 
-/// The policy of the latest checkpoint in `run_dir` as a [`PolicyGraph`].
-pub fn load_policy_graph(run_dir: &Path) -> Result<PolicyGraph, AgentError> {
-    let trainer = Trainer::resume(run_dir)?;
-    Ok(TrainedPolicy::from_trainer(&trainer).policy_graph())
-}
-
 /// Result of a deterministic evaluation.
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalSummary {
@@ -137,41 +194,38 @@ pub fn evaluation_memory_bytes(episodes: usize, obs_dim: usize, layer_widths: us
     episodes as f64 * floats_per_copy as f64 * 4.0
 }
 
-/// Runs `episodes` deterministic episodes (one per environment copy, copy `i` seeded `seed + i`)
-/// with the latest checkpoint of `run_dir`.
-pub fn evaluate_run(run_dir: &Path, episodes: usize, seed: u64) -> Result<EvalSummary, AgentError> {
-    let trainer = Trainer::resume(run_dir)?;
-    let policy = TrainedPolicy::from_trainer(&trainer);
-    let widths: usize = policy
-        .model
-        .actor_layers()
-        .iter()
-        .map(|layer| layer.d_out)
-        .sum();
-    check_memory(
-        &format!("--episodes {episodes}"),
-        evaluation_memory_bytes(episodes, policy.spec.observation.dim(), widths),
-    )?;
-    let config = trainer.config();
-    let mut env = rlpkg_env::make_with(
-        &config.run.env,
-        episodes,
-        config.transport.as_ref(),
-        &config.source,
-    )?;
-    let stats =
-        run_episodes_in::<AgentError>(env.as_mut(), seed, 0, |obs, n| Ok(policy.act(obs, n)))?;
-    let returns = stats.returns.iter().map(|&r| r as f64);
-    Ok(EvalSummary {
-        env_id: policy.spec.id.clone(),
-        episodes,
-        seed,
-        update: trainer.update,
-        global_step: trainer.global_step,
-        mean_return: stats.mean_return(),
-        std_return: stats.std_return(),
-        min_return: returns.clone().fold(f64::INFINITY, f64::min),
-        max_return: returns.fold(f64::NEG_INFINITY, f64::max),
-        mean_length: stats.lengths.iter().sum::<usize>() as f64 / episodes.max(1) as f64,
-    })
+impl TrainedPolicy {
+    /// An error when `episodes` environment copies in lockstep would not fit in memory with this
+    /// policy (see [`evaluation_memory_bytes`]); check before building them.
+    pub fn check_evaluation_memory(&self, episodes: usize) -> Result<(), AgentError> {
+        let widths: usize = self
+            .model
+            .actor_layers()
+            .iter()
+            .map(|layer| layer.d_out)
+            .sum();
+        check_memory(
+            &format!("--episodes {episodes}"),
+            evaluation_memory_bytes(episodes, self.spec.observation.dim(), widths),
+        )
+    }
+
+    /// Runs one deterministic episode per copy of `env` (copy `i` seeded `seed + i`).
+    pub fn evaluate(&self, env: &mut dyn VecEnv, seed: u64) -> Result<EvalSummary, AgentError> {
+        let episodes = env.num_envs();
+        let stats = run_episodes::<AgentError>(env, seed, 0, |obs, n| Ok(self.act(obs, n)))?;
+        let returns = stats.returns.iter().map(|&r| r as f64);
+        Ok(EvalSummary {
+            env_id: self.spec.id.clone(),
+            episodes,
+            seed,
+            update: self.update,
+            global_step: self.global_step,
+            mean_return: stats.mean_return(),
+            std_return: stats.std_return(),
+            min_return: returns.clone().fold(f64::INFINITY, f64::min),
+            max_return: returns.fold(f64::NEG_INFINITY, f64::max),
+            mean_length: stats.lengths.iter().sum::<usize>() as f64 / episodes.max(1) as f64,
+        })
+    }
 }

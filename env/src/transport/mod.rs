@@ -1052,11 +1052,8 @@ impl VecEnv for Transport {
         self.lanes.len()
     }
 
-    fn reset(&mut self, seed: u64, out: &mut StepBuffers) {
-        // Settling and restoring only fail on a simulator fault: the scene's package was checked
-        // at construction, and variants that do not seal are replaced by it.
+    fn reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
         self.try_reset(seed, out)
-            .unwrap_or_else(|e| panic!("transport reset failed: {e}"));
     }
 
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError> {

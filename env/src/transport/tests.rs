@@ -1,7 +1,6 @@
 //! Tests of the transport environment on a coarse grid with few steps.
 
 use super::*;
-use crate::make_with;
 
 /// A small `[transport]` table: coarse grid, the embedded physical scene, two settled variants.
 fn test_table() -> String {
@@ -178,11 +177,6 @@ fn configuration_errors_name_the_key_and_the_expected_range() {
         err.contains("transport.paths") && err.contains("NOPE"),
         "{err}"
     );
-    let err = make_with("Transport-v0", 1, None, "t.toml")
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(err.contains("[transport]"), "{err}");
 }
 
 #[test]

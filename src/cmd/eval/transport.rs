@@ -5,16 +5,16 @@ use std::path::Path;
 
 use anyhow::Context;
 
-use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
-use rlpkg_agents::Trainer;
+use rlpkg_agents::TrainedPolicy;
 use rlpkg_env::transport::{
     load_paths, load_scene, recorded_timings, run_traced_episodes, OutcomeSummary, TracePoint,
-    TransportConfig, TransportPath, ID,
+    TransportConfig, TransportPath,
 };
-use rlpkg_env::{EnvError, Transport, VecEnv};
+use rlpkg_env::Transport;
+use rlpkg_vec_env::{EnvError, VecEnv};
 use serde::Serialize;
 
-use crate::cmd::eval::EvalArgs;
+use super::EvalArgs;
 use crate::error::input_error;
 use crate::render::plot::write_transport_plot;
 
@@ -42,16 +42,19 @@ struct RecordedBaseline {
     timings: Vec<(String, String)>,
 }
 
-/// Whether `run` holds a transport run (its configuration names the transport environment).
-pub fn is_transport_run(trainer: &Trainer) -> bool {
-    trainer.config().run.env == ID
-}
-
-/// Evaluates the policy of `trainer` (loaded from `run`), the scripted baseline at each time
-/// scale of `args.scripted` and the recorded baseline of each velocity level in `args.recorded`
-/// over `episodes` randomised episodes from `args.seed` (and `args.trajectories`' recordings);
-/// prints the table (or JSON), writes plots, an animation and `summary.json` to `run/eval/`.
-pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> anyhow::Result<()> {
+/// Evaluates `policy` (read from `run`, trained on the task `transport` describes; `source` is the
+/// run's configuration file), the scripted baseline at each time scale of `args.scripted` and the
+/// recorded baseline of each velocity level in `args.recorded` over `episodes` randomised episodes
+/// from `args.seed` (and `args.trajectories`' recordings); prints the table (or JSON), writes
+/// plots, an animation and `summary.json` to `run/eval/`.
+pub fn run(
+    run: &Path,
+    policy: &TrainedPolicy,
+    transport: &TransportConfig,
+    source: &str,
+    episodes: usize,
+    args: &EvalArgs,
+) -> anyhow::Result<()> {
     let (seed, scales, json) = (args.seed, &args.scripted, args.json);
     let recorded: Vec<&str> = match args.recorded.as_slice() {
         [none] if none == "none" => Vec::new(),
@@ -76,22 +79,12 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
     // A signal stops the episodes at the next control step; the plots, the GIF and summary.json
     // are written whole or not at all.
     let _cooperation = crate::interrupt::Cooperation::start();
-    let config = trainer.config();
-    let table = config
-        .transport
-        .as_ref()
-        .ok_or_else(|| input_error(format!("{}: no [transport] table", run.display())))?;
-    let transport = TransportConfig::from_table(table, &config.source).map_err(input_error)?;
-    let policy = TrainedPolicy::from_trainer(trainer);
-    let widths: usize = policy.model.actor_layers().iter().map(|l| l.d_out).sum();
-    rlpkg_agents::config::check_memory(
-        &format!("--episodes {episodes}"),
-        evaluation_memory_bytes(episodes, policy.spec.observation.dim(), widths),
-    )
-    .map_err(input_error)?;
-    let make = || Transport::new(transport.clone(), episodes, &config.source);
+    policy
+        .check_evaluation_memory(episodes)
+        .map_err(input_error)?;
+    let make = || Transport::new(transport.clone(), episodes, source);
     let held_out = match args.trajectories.as_deref() {
-        Some(split) => Some(held_out_configs(&transport, split, &config.source)?),
+        Some(split) => Some(held_out_configs(transport, split, source)?),
         None => None,
     };
     let mut rows = Vec::new();
@@ -115,13 +108,12 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
     }
     let mut baselines = Vec::new();
     for velocity in recorded {
-        let timings =
-            recorded_timings(&transport, velocity, &config.source).map_err(input_error)?;
+        let timings = recorded_timings(transport, velocity, source).map_err(input_error)?;
         // The same episodes, with time to finish the slowest recording (the low-velocity ones
         // take 19-22 s): the time limit does not change what an episode draws.
         let mut long = transport.clone();
         long.time_limit_s = long.time_limit_s.max(longest_timing_s(&timings) * 1.25);
-        let mut env = Transport::new(long, episodes, &config.source).map_err(input_error)?;
+        let mut env = Transport::new(long, episodes, source).map_err(input_error)?;
         let (outcomes, mut traces) =
             run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |env, _| {
                 crate::interrupt::check()?;
@@ -153,21 +145,21 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
         &first_episode,
     )?;
     plots.push(plot.display().to_string());
-    let medium = recorded_timings(&transport, "medium", &config.source).map_err(input_error)?;
+    let medium = recorded_timings(transport, "medium", source).map_err(input_error)?;
     let (animation, still) = (out.join("episode-0.gif"), out.join("episode-0-end.png"));
     render_beside_medium(
         (&animation, &still),
-        &transport,
-        &config.source,
+        transport,
+        source,
         &medium,
         seed,
-        &policy,
+        policy,
     )?;
     plots.extend([&animation, &still].map(|p| p.display().to_string()));
     let mut trajectory_rows = Vec::new();
     for (id, held) in held_out.into_iter().flatten() {
         let mut drivers = Vec::new();
-        let mut env = Transport::new(held.clone(), 1, &config.source).map_err(input_error)?;
+        let mut env = Transport::new(held.clone(), 1, source).map_err(input_error)?;
         let (outcomes, mut traces) =
             run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |_, obs| {
                 crate::interrupt::check()?;
@@ -188,8 +180,8 @@ pub fn run(run: &Path, trainer: &Trainer, episodes: usize, args: &EvalArgs) -> a
     }
     let report = TransportReport {
         run: run.display().to_string(),
-        update: trainer.update,
-        global_step: trainer.global_step,
+        update: policy.update,
+        global_step: policy.global_step,
         seed,
         recorded: baselines,
         rows,

@@ -4,13 +4,11 @@
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::{
-    check_action_len, env_rng, pack_state, unpack_state, EnvError, EnvSpec, EnvState, Space,
-    StepBuffers, VecEnv,
-};
+use crate::state::{pack_state, unpack_state};
+use crate::{check_action_len, env_rng, EnvError, EnvSpec, EnvState, Space, StepBuffers, VecEnv};
 
 /// Gymnasium id.
-pub(crate) const ID: &str = "CartPole-v1";
+pub const ID: &str = "CartPole-v1";
 const GRAVITY: f64 = 9.8;
 const MASS_CART: f64 = 1.0;
 const MASS_POLE: f64 = 0.1;
@@ -117,7 +115,7 @@ impl VecEnv for CartPole {
         )
     }
 
-    fn reset(&mut self, seed: u64, out: &mut StepBuffers) {
+    fn reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
         for env in 0..self.num_envs() {
             self.rngs[env] = env_rng(seed, env);
             self.reset_env(env);
@@ -127,6 +125,7 @@ impl VecEnv for CartPole {
         out.rewards.fill(0.0);
         out.terminated.fill(false);
         out.truncated.fill(false);
+        Ok(())
     }
 
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError> {
@@ -187,7 +186,7 @@ mod tests {
         // From rest, pushing right: temp = 10/1.1, theta_acc = -600/41, x_acc = 400/41.
         let mut env = CartPole::new(2);
         let mut out = env.buffers();
-        env.reset(0, &mut out);
+        env.reset(0, &mut out).unwrap();
         set_state(&mut env, 0, [0.0; 4]);
         set_state(&mut env, 1, [0.0; 4]);
         env.step(&[1.0, 0.0], &mut out).unwrap();
@@ -214,7 +213,7 @@ mod tests {
         let x_acc = temp - 0.05 * theta_acc * theta.cos() / 1.1;
         let mut env = CartPole::new(1);
         let mut out = env.buffers();
-        env.reset(3, &mut out);
+        env.reset(3, &mut out).unwrap();
         set_state(&mut env, 0, [0.3, -0.2, theta, theta_dot]);
         env.step(&[0.0], &mut out).unwrap();
         let expected = [
@@ -236,7 +235,7 @@ mod tests {
     fn termination_resets_and_keeps_the_final_observation() {
         let mut env = CartPole::new(2);
         let mut out = env.buffers();
-        env.reset(7, &mut out);
+        env.reset(7, &mut out).unwrap();
         // Pole at 0.2 rad falling right at 1 rad/s crosses 12 degrees (0.2094 rad) this step.
         set_state(&mut env, 0, [0.0, 0.0, 0.2, 1.0]);
         env.step(&[1.0, 1.0], &mut out).unwrap();
@@ -261,7 +260,7 @@ mod tests {
     fn time_limit_truncates_at_500_steps() {
         let mut env = CartPole::new(1);
         let mut out = env.buffers();
-        env.reset(1, &mut out);
+        env.reset(1, &mut out).unwrap();
         env.elapsed_steps[0] = 498;
         set_state(&mut env, 0, [0.0; 4]);
         env.step(&[1.0], &mut out).unwrap();
@@ -276,15 +275,15 @@ mod tests {
         let mut a = CartPole::new(3);
         let mut b = CartPole::new(5);
         let (mut out_a, mut out_b) = (a.buffers(), b.buffers());
-        a.reset(11, &mut out_a);
-        b.reset(11, &mut out_b);
+        a.reset(11, &mut out_a).unwrap();
+        b.reset(11, &mut out_b).unwrap();
         assert_eq!(
             out_a.obs[..],
             out_b.obs[..12],
             "copy i depends only on seed + i"
         );
         assert!(out_a.obs.iter().all(|v| v.abs() <= 0.05));
-        b.reset(12, &mut out_b);
+        b.reset(12, &mut out_b).unwrap();
         assert_ne!(out_a.obs[..], out_b.obs[..12]);
         assert!(matches!(
             a.step(&[1.0, 0.0], &mut out_a),

@@ -6,13 +6,11 @@ use std::f64::consts::PI;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::{
-    check_action_len, env_rng, pack_state, unpack_state, EnvError, EnvSpec, EnvState, Space,
-    StepBuffers, VecEnv,
-};
+use crate::state::{pack_state, unpack_state};
+use crate::{check_action_len, env_rng, EnvError, EnvSpec, EnvState, Space, StepBuffers, VecEnv};
 
 /// Gymnasium id.
-pub(crate) const ID: &str = "Pendulum-v1";
+pub const ID: &str = "Pendulum-v1";
 const MAX_SPEED: f64 = 8.0;
 const MAX_TORQUE: f64 = 2.0;
 const DT: f64 = 0.05;
@@ -107,7 +105,7 @@ impl VecEnv for Pendulum {
         )
     }
 
-    fn reset(&mut self, seed: u64, out: &mut StepBuffers) {
+    fn reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
         for env in 0..self.num_envs() {
             self.rngs[env] = env_rng(seed, env);
             self.reset_env(env);
@@ -117,6 +115,7 @@ impl VecEnv for Pendulum {
         out.rewards.fill(0.0);
         out.terminated.fill(false);
         out.truncated.fill(false);
+        Ok(())
     }
 
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError> {
@@ -159,7 +158,7 @@ mod tests {
     fn hand_computed_steps() {
         let mut env = Pendulum::new(3);
         let mut out = env.buffers();
-        env.reset(0, &mut out);
+        env.reset(0, &mut out).unwrap();
         // Upright at rest, torque 2: theta_dot = 3 * 2 * 0.05 = 0.3, theta = 0.015, cost 0.004.
         env.theta[0] = 0.0;
         env.theta_dot[0] = 0.0;
@@ -193,7 +192,7 @@ mod tests {
     fn truncates_after_200_steps_and_resets_within_bounds() {
         let mut env = Pendulum::new(2);
         let mut out = env.buffers();
-        env.reset(5, &mut out);
+        env.reset(5, &mut out).unwrap();
         for step in 1..=200 {
             env.step(&[0.5, -0.5], &mut out).unwrap();
             assert_eq!(out.truncated[0], step == 200);

@@ -77,11 +77,11 @@ struct PerturbRow {
     object_mse_mean_m2: f64,
 }
 
-/// Runs `rlpkg eval --params`.
 /// Upper bound of the number of `--perturb` percentages.
 const MAX_PERTURBATIONS: usize = 20;
 
-pub fn run(args: &crate::cmd::eval::EvalArgs) -> anyhow::Result<()> {
+/// Runs `rlpkg eval --params`.
+pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
     let params_path = args
         .params
         .as_ref()

@@ -1,14 +1,26 @@
 //! `rlpkg eval`: one entry point, two jobs. With a run folder or `--policy`, it evaluates a policy in
 //! its environment; with `--params`, it evaluates simulator parameters against recorded trajectories.
+//!
+//! - this module: the arguments, and a run folder of a classic-control task;
+//! - [`transport`]: a run folder of the transport task, beside the scripted and recorded baselines;
+//! - [`onnx`]: an exported policy (`--policy`);
+//! - [`params`]: simulator parameters (`--params`).
+//!
+//! A run's policy is read from its latest checkpoint with the spec of its task; the environments
+//! of the evaluation episodes are the only ones built.
+
+mod onnx;
+mod params;
+mod transport;
 
 use std::path::PathBuf;
 
 use clap::Args;
-use rlpkg_agents::{evaluate_run, AgentError, Trainer};
+use rlpkg_agents::TrainedPolicy;
 use serde::Serialize;
 
-use crate::cmd::eval_transport;
-use crate::error::input_error;
+use crate::error::{agent_error, input_error};
+use crate::tasks::{Task, Training};
 
 /// Options of `--params` (simulator parameters against recordings) and of a policy (run folder or
 /// `--policy`) exclude each other; clap rejects combinations that would silently ignore one.
@@ -68,11 +80,11 @@ pub struct EvalArgs {
 /// Runs `rlpkg eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     if args.params.is_some() {
-        return crate::cmd::eval_params::run(&args);
+        return params::run(&args);
     }
     if let Some(policy) = &args.policy {
         let episodes = episode_count(args.episodes)?;
-        let summary = crate::cmd::export::eval_onnx_policy(policy, episodes, args.seed)?;
+        let summary = onnx::eval_onnx_policy(policy, episodes, args.seed)?;
         return print_policy_summary(&summary, args.json, &|s| {
             format!(
                 "{} on {}: {} episodes, return {:.2} +- {:.2} (mean length {:.1})",
@@ -91,19 +103,27 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         ));
     };
     let episodes = episode_count(args.episodes)?;
-    let as_input = |e: AgentError| {
-        if e.is_input_error() {
-            input_error(e)
-        } else {
-            e.into()
-        }
-    };
-    let trainer = Trainer::resume(run).map_err(as_input)?;
-    if eval_transport::is_transport_run(&trainer) {
-        return eval_transport::run(run, &trainer, episodes, &args);
+    let training = Training::of_run(run).map_err(agent_error)?;
+    let policy = TrainedPolicy::load(
+        run,
+        &training.config,
+        &training.config_hash(),
+        &training.spec,
+    )
+    .map_err(agent_error)?;
+    if let Task::Transport { config, source } = &training.task {
+        return transport::run(run, &policy, config, source, episodes, &args);
     }
-    drop(trainer);
-    let summary = evaluate_run(run, episodes, args.seed).map_err(as_input)?;
+    policy
+        .check_evaluation_memory(episodes)
+        .map_err(agent_error)?;
+    let mut env = training
+        .task
+        .build(episodes)
+        .map_err(|e| agent_error(e.into()))?;
+    let summary = policy
+        .evaluate(env.as_mut(), args.seed)
+        .map_err(agent_error)?;
     print_policy_summary(&summary, args.json, &|s| {
         format!(
             "{} ({}, update {}, {} steps): {} deterministic episodes, return {:.2} +- {:.2} \
