@@ -1,11 +1,13 @@
 //! The `[transport]` table of a training configuration (`configs/train/transport.toml`): scene, paths
 //! from the recordings, control rate, limits, success tolerances, reward weights and domain
 //! randomisation. Every key is required unless said otherwise; unknown keys and out-of-range
-//! values are rejected with the file, the key and what was expected.
+//! values are rejected with the file, the key and what was expected. [`load_scene`] resolves the
+//! scene the table names.
 
+use std::path::Path;
+
+use rlpkg_sim::{Randomization, SceneConfig, ToolLimits};
 use serde::{Deserialize, Serialize};
-
-use rlpkg_sim::Randomization;
 
 use crate::EnvError;
 
@@ -319,5 +321,158 @@ impl TransportConfig {
                 message: e.to_string(),
             })?;
         Ok(())
+    }
+}
+
+/// The scene `config.scene` names (file or preset) with the configured grid and the robot limits
+/// of `[transport.limits]`; it must have the seal model on.
+pub fn load_scene(config: &TransportConfig, source: &str) -> Result<SceneConfig, EnvError> {
+    let mut scene = match config.scene.as_str() {
+        "physical" | "reference" => SceneConfig::preset(&config.scene),
+        path => SceneConfig::load(Path::new(path)),
+    }
+    .map_err(|e| EnvError::ConfigParse {
+        file: source.to_string(),
+        message: format!("transport.scene = {:?}: {e}", config.scene),
+    })?;
+    if !scene.seal.enabled {
+        return Err(EnvError::Config {
+            file: source.to_string(),
+            key: "transport.scene".into(),
+            value: config.scene.clone(),
+            expected: "a scene with SI masses and the seal model on ([seal] enabled = true), \
+                       e.g. configs/scenes/physical-explicit.toml"
+                .into(),
+        });
+    }
+    if config.randomization.package.object_tilt_deg > 0.0
+        && !(scene.disc.hold_at_recorded_start && scene.disc.hold_orientation)
+    {
+        return Err(EnvError::Config {
+            file: source.to_string(),
+            key: "transport.randomization.package.object_tilt_deg".into(),
+            value: config.randomization.package.object_tilt_deg.to_string(),
+            expected: format!(
+                "0 with the scene {:?}: a tilted object needs a scene that turns the disc to its \
+                 tilt during the rest ([disc] hold_at_recorded_start = true and hold_orientation \
+                 = true); started tilted, its rim cuts through the flat package's film",
+                config.scene
+            ),
+        });
+    }
+    scene.package.grid = config.grid;
+    let l = &config.limits;
+    scene.tool_limits = ToolLimits {
+        max_speed_m_s: l.max_path_speed_m_s as f32,
+        max_accel_m_s2: l.max_path_accel_m_s2 as f32,
+        max_angular_speed_rad_s: l.max_angular_speed_rad_s as f32,
+        max_angular_accel_rad_s2: l.max_angular_accel_rad_s2 as f32,
+    };
+    scene.validate(source).map_err(|e| EnvError::ConfigParse {
+        file: source.to_string(),
+        message: e.to_string(),
+    })?;
+    Ok(scene)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::transport::test_support::{config, test_table};
+    use crate::transport::Transport;
+
+    #[test]
+    fn a_tilted_object_needs_a_scene_that_turns_the_disc_during_the_rest() {
+        let text = test_table().replace("object_tilt_deg = 0.0", "object_tilt_deg = 20.0");
+        let error = Transport::new(config(&text), 1, "test.toml").err().unwrap();
+        let message = error.to_string();
+        assert!(
+            message.contains("test.toml")
+                && message.contains("object_tilt_deg")
+                && message.contains("hold_orientation"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn fixed_length_arrays_with_a_wrong_length_name_the_key() {
+        let text = test_table();
+        for (from, to, key, found) in [
+            ("grid = [11, 13]", "grid = [11, 13, 2]", "grid", 3),
+            (
+                "target_tilt_deg = [30.0, 60.0]",
+                "target_tilt_deg = [30.0, 45.0, 60.0]",
+                "randomization.target_tilt_deg",
+                3,
+            ),
+            (
+                "object_mass_kg = [0.287, 0.595]",
+                "object_mass_kg = [0.287]",
+                "randomization.package.object_mass_kg",
+                1,
+            ),
+            (
+                "package_yaw_deg = [-10.0, 10.0]",
+                "package_yaw_deg = [-10.0, 0.0, 10.0]",
+                "randomization.package.package_yaw_deg",
+                3,
+            ),
+            (
+                "k_tri_e = [0.8, 1.25]",
+                "k_tri_e = [0.8, 1.0, 1.25]",
+                "randomization.package.param_scale.k_tri_e",
+                3,
+            ),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let table: toml::Table = toml::from_str(&text.replace(from, to)).unwrap();
+            let err = TransportConfig::from_table(table["transport"].as_table().unwrap(), "t.toml")
+                .unwrap_err()
+                .to_string();
+            let expected = format!(
+                "t.toml: key `transport.{key}`: invalid length {found}, expected an array of length 2"
+            );
+            assert!(err.starts_with(&expected), "{to}: {err}");
+        }
+    }
+
+    #[test]
+    fn configuration_errors_name_the_key_and_the_expected_range() {
+        let text = test_table();
+        let err = TransportConfig::from_toml_str(
+            &text.replace("control_hz = 20.0", "control_hz = 100.0"),
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("t.toml")
+                && err.contains("transport.control_hz")
+                && err.contains("[10, 30]"),
+            "{err}"
+        );
+        // Faster than 1.5 x the high-velocity recordings' peak speed (0.945 m/s) is refused.
+        let err = TransportConfig::from_toml_str(
+            &text.replace("max_path_speed_m_s = 0.945", "max_path_speed_m_s = 1.2"),
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("limits.max_path_speed_m_s"), "{err}");
+        let err = TransportConfig::from_toml_str(
+            &text.replace("goal_jitter_m = 0.03", "goal_jiter_m = 0.03"),
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("goal_jiter_m"), "{err}");
+        let err = Transport::new(config(&text.replace("\"HHHHM\"", "\"NOPE\"")), 1, "t.toml")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            err.contains("transport.paths") && err.contains("NOPE"),
+            "{err}"
+        );
     }
 }

@@ -1,8 +1,10 @@
 //! Episode outcomes of the transport task for any driver (a trained policy, the scripted
 //! baseline), over the same seeded episodes, and the summary the evaluation table prints.
 
+use glam::DVec3;
 use serde::Serialize;
 
+use super::geometry::{quat, v3};
 use super::{info_names, Transport};
 use crate::{EnvError, VecEnv};
 
@@ -52,6 +54,24 @@ pub struct TracePoint {
     pub object_in_tool_m: [f64; 3],
     /// Largest seal utilisation of any cup.
     pub peak_seal_utilisation: f64,
+}
+
+impl Transport {
+    /// Copy `env`'s tool and object now, for plots of an episode.
+    pub fn trace_point(&self, env: usize) -> TracePoint {
+        let episode = &self.episodes[env];
+        let state = &self.states[env];
+        let start_axis = self.paths[episode.path].start_orientation * DVec3::Y;
+        let axis = quat(state.tool_orientation) * DVec3::Y;
+        TracePoint {
+            time_s: episode.steps as f64 * self.dt,
+            path_speed_m_s: episode.path_speed,
+            tool_speed_m_s: v3(state.tool_velocity).length(),
+            tool_tilt_deg: axis.dot(start_axis).clamp(-1.0, 1.0).acos().to_degrees(),
+            object_in_tool_m: v3(state.disc_in_tool.position).to_array(),
+            peak_seal_utilisation: self.peak_utilisation(env),
+        }
+    }
 }
 
 /// Runs the first episode of every copy of `env` (copy `i` is seeded from `seed` as
@@ -253,6 +273,7 @@ fn percentile(xs: &[f64], q: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transport::test_support::{env, test_table};
 
     fn outcome(ending: Ending, time_s: f64, motion: f64) -> EpisodeOutcome {
         EpisodeOutcome {
@@ -284,5 +305,42 @@ mod tests {
         let none = OutcomeSummary::of("y", &outcomes[2..]);
         assert_eq!(none.time_to_place_mean_s, None);
         assert!(OutcomeSummary::table(&[s, none]).lines().count() == 3);
+    }
+
+    #[test]
+    fn run_episodes_reports_every_copy_once_with_its_ending_and_time() {
+        // A tool held still for a 1 s time limit: every copy times out after 20 control steps, with the
+        // seal loaded (the package hangs from the cups) and the object nearly still.
+        let mut t = env(
+            &test_table().replace("time_limit_s = 12.0", "time_limit_s = 1.0"),
+            3,
+        );
+        let (outcomes, traces) = run_traced_episodes::<EnvError>(&mut t, 5, &[1], |t, _| {
+            Ok(vec![0.0; t.num_envs() * t.spec().action.dim()])
+        })
+        .unwrap();
+        assert_eq!(outcomes.len(), 3);
+        // The traced copy: its start and each of its 20 steps; the tool held level and still.
+        let trace = &traces[0];
+        assert_eq!(trace.len(), 21);
+        assert!((trace[20].time_s - 1.0).abs() < 1e-6);
+        for p in trace {
+            assert_eq!(p.path_speed_m_s, 0.0);
+            assert!(p.tool_tilt_deg < 1.0 && p.tool_speed_m_s < 0.05, "{p:?}");
+        }
+        assert!(trace.iter().any(|p| p.peak_seal_utilisation > 0.0));
+        for o in &outcomes {
+            assert_eq!(o.ending, Ending::TimedOut, "{o:?}");
+            assert!((o.time_s - 1.0).abs() < 1e-6, "{o:?}");
+            assert!(
+                o.peak_seal_utilisation > 0.0 && o.peak_seal_utilisation < 0.5,
+                "{o:?}"
+            );
+            // The object sways a few centimetres (path length) as the package settles under the cups.
+            assert!(o.object_motion_m < 0.1, "{o:?}");
+        }
+        let summary = OutcomeSummary::of("still", &outcomes);
+        assert_eq!(summary.timed_out_pct, 100.0);
+        assert_eq!(summary.time_to_place_mean_s, None);
     }
 }

@@ -1,0 +1,481 @@
+//! Episodes: the settled package variants a reset builds, the conditions drawn for each episode,
+//! the start of an episode from a variant's snapshot, and what happens to a copy whose episode
+//! ended (restarted, or retired in evaluation mode).
+
+use std::sync::Arc;
+
+use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rlpkg_sim::{
+    EnvObservation, EnvSnapshot, EpisodeSpec, Model, SceneConfig, Simulator, ToolTrajectory,
+};
+use serde::{Deserialize, Serialize};
+
+use super::geometry::v3;
+use super::snapshot::vec3_as_array;
+use super::{sim_error, Transport, TransportPath};
+use crate::{env_rng, EnvError, StepBuffers, VecEnv};
+
+/// What was drawn for one copy's current episode.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeConditions {
+    /// Recording whose path the episode follows.
+    pub path_id: String,
+    /// Settled variant the episode started from.
+    pub variant: usize,
+    /// Tool tilt at the place pose (rad).
+    pub target_tilt_rad: f64,
+    /// Offset of the place position from the recorded one (m).
+    pub goal_jitter_m: [f64; 3],
+    /// Offset of the pick position from the recorded one (m).
+    pub start_offset_m: [f64; 3],
+    /// Object mass (kg).
+    pub object_mass_kg: f32,
+    /// Yaw of the package under the tool (rad).
+    pub package_yaw_rad: f32,
+}
+
+/// A settled package state episodes start from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(super) struct Variant {
+    pub(super) snapshot: EnvSnapshot,
+    /// Tool position at pick (m).
+    #[serde(with = "vec3_as_array")]
+    pub(super) tool_start: DVec3,
+}
+
+/// One copy's current episode beyond the simulator state: what was drawn for it, where the
+/// reference is along the path, and what the last step left for the next one's rates.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub(super) struct Episode {
+    /// Index of the path followed.
+    pub(super) path: usize,
+    /// Index of the settled variant started from.
+    pub(super) variant: usize,
+    /// Added to the path's points: the variant's tool start minus the path's first point.
+    #[serde(with = "vec3_as_array")]
+    pub(super) start_offset: DVec3,
+    /// Place position offset, blended in along the path.
+    #[serde(with = "vec3_as_array")]
+    pub(super) goal_jitter: DVec3,
+    /// Tool tilt at the place pose (rad).
+    pub(super) target_tilt: f64,
+    /// Arc length of the reference along the path (m).
+    pub(super) progress: f64,
+    /// Speed of the reference along the path (m/s).
+    pub(super) path_speed: f64,
+    /// Arc length the last command advanced the reference by (m).
+    pub(super) last_advance: f64,
+    /// The last action after clamping to its bounds.
+    pub(super) previous_action: [f64; 3],
+    /// The tool's linear acceleration over the last step (m/s²).
+    #[serde(with = "vec3_as_array")]
+    pub(super) previous_accel: DVec3,
+    /// The tool's angular acceleration over the last step (rad/s²).
+    #[serde(with = "vec3_as_array")]
+    pub(super) previous_angular_accel: DVec3,
+    /// The object's position in the tool frame after the last step (m).
+    #[serde(with = "vec3_as_array")]
+    pub(super) previous_object_in_tool: DVec3,
+    /// Simulator time of the episode start (s).
+    pub(super) start_time: f64,
+    /// Control steps taken.
+    pub(super) steps: usize,
+}
+
+/// Uniform draw in `[lo, hi]` (`lo` when the range is empty).
+fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    if lo < hi {
+        rng.random_range(lo..=hi)
+    } else {
+        lo
+    }
+}
+
+/// A uniform point in the ball of radius `r` (3-D) or, with `horizontal`, the disc (x, z).
+fn uniform_offset(rng: &mut ChaCha8Rng, r: f64, horizontal: bool) -> DVec3 {
+    if r <= 0.0 {
+        return DVec3::ZERO;
+    }
+    loop {
+        let p = DVec3::new(
+            uniform(rng, -1.0, 1.0),
+            if horizontal {
+                0.0
+            } else {
+                uniform(rng, -1.0, 1.0)
+            },
+            uniform(rng, -1.0, 1.0),
+        );
+        if p.length_squared() <= 1.0 {
+            return p * r;
+        }
+    }
+}
+
+/// The generator of settled variant `k` for `seed` (independent of the copies' streams).
+fn variant_rng(seed: u64, k: usize) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(1 << 32 | k as u64);
+    rng
+}
+
+/// The index of the path whose recorded final tilt is nearest `tilt` (the first of equals).
+fn nearest_path(paths: &[TransportPath], tilt: f64) -> Option<usize> {
+    paths
+        .iter()
+        .enumerate()
+        .min_by(|a, b| {
+            let da = (a.1.recorded_final_tilt_rad - tilt).abs();
+            let db = (b.1.recorded_final_tilt_rad - tilt).abs();
+            da.total_cmp(&db)
+        })
+        .map(|(i, _)| i)
+}
+
+/// The package at pick on `path`, the tool held at its start pose.
+pub(super) fn base_spec(scene: &SceneConfig, path: &TransportPath) -> EpisodeSpec {
+    let q = path.start_orientation;
+    EpisodeSpec {
+        placement: path.placement,
+        params: scene.params,
+        object_mass_kg: path.object_mass_kg,
+        disc_mass_scale: None,
+        trajectory: Arc::new(ToolTrajectory::hold(
+            path.points[0].to_array(),
+            [q.x, q.y, q.z, q.w],
+        )),
+    }
+}
+
+/// Simulates `specs` through the rest period and `settle_s`; returns their snapshots and
+/// whether every cup of each still holds a healthy package.
+fn settle(
+    model: &Arc<Model>,
+    specs: Vec<EpisodeSpec>,
+    settle_s: f64,
+) -> Result<(Vec<EnvSnapshot>, Vec<bool>), EnvError> {
+    let mut sim = Simulator::new(model.clone(), specs).map_err(sim_error)?;
+    let seconds = model.config.cups.rest_time_s as f64 + settle_s;
+    sim.step((seconds / sim.dt() as f64).round() as u64);
+    let mut states = vec![EnvObservation::default(); sim.num_envs()];
+    sim.read_states(&mut states).map_err(sim_error)?;
+    let cups = model.num_cups() as u32;
+    let held = states
+        .iter()
+        .map(|s| !s.frozen && s.cups_attached == cups)
+        .collect();
+    Ok(((0..sim.num_envs()).map(|k| sim.snapshot(k)).collect(), held))
+}
+
+/// The unrandomised package `base` on `path` settled for `settle_s` after the rest period: it
+/// checks that the scene's cups seal, and stands in for a randomised variant whose cups do not.
+pub(super) fn settle_unrandomised(
+    model: &Arc<Model>,
+    base: EpisodeSpec,
+    path: &TransportPath,
+    settle_s: f64,
+) -> Result<Variant, EnvError> {
+    let (mut settled, held) = settle(model, vec![base], settle_s)?;
+    if !held[0] {
+        return Err(EnvError::ConfigParse {
+            file: "[transport]".into(),
+            message: format!(
+                "the package of recording {} does not stay sealed by all cups in this scene \
+                 after the rest period (seal settings too weak for its mass?)",
+                path.id
+            ),
+        });
+    }
+    Ok(Variant {
+        snapshot: settled.remove(0),
+        tool_start: path.points[0],
+    })
+}
+
+impl Transport {
+    /// [`VecEnv::reset`] that reports a failure to settle the packages or to restore them instead
+    /// of panicking.
+    pub fn try_reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
+        self.settle_variants(seed)?;
+        self.retired.fill(false);
+        for env in 0..self.num_envs() {
+            self.rngs[env] = env_rng(seed, env);
+            self.start_episode(env)?;
+        }
+        self.read_simulator()?;
+        out.rewards.iter_mut().for_each(|r| *r = 0.0);
+        out.terminated.iter_mut().for_each(|t| *t = false);
+        out.truncated.iter_mut().for_each(|t| *t = false);
+        self.info.iter_mut().for_each(|x| *x = 0.0);
+        for env in 0..self.num_envs() {
+            self.observe_into(env, out, false);
+            self.observe_into(env, out, true);
+        }
+        Ok(())
+    }
+
+    /// How many randomised packages of the last reset did not stay sealed and were replaced by
+    /// the unrandomised one.
+    pub fn replaced_variants(&self) -> usize {
+        self.replaced_variants
+    }
+
+    /// What was drawn for copy `env`'s current episode (after [`VecEnv::reset`]).
+    pub fn conditions(&self, env: usize) -> EpisodeConditions {
+        let episode = &self.episodes[env];
+        let spec = self.sim.spec(env);
+        EpisodeConditions {
+            path_id: self.paths[episode.path].id.clone(),
+            variant: episode.variant,
+            target_tilt_rad: episode.target_tilt,
+            goal_jitter_m: episode.goal_jitter.to_array(),
+            start_offset_m: (self.variants[episode.variant].tool_start - self.paths[0].points[0])
+                .to_array(),
+            object_mass_kg: spec.object_mass_kg,
+            package_yaw_rad: spec.placement.package_yaw_rad,
+        }
+    }
+
+    /// Settles `settled_variants` randomised packages (drawn from `seed`) and snapshots them.
+    fn settle_variants(&mut self, seed: u64) -> Result<(), EnvError> {
+        let scene = &self.model.config;
+        let r = &self.config.randomization;
+        let path = &self.paths[0];
+        let mut specs = Vec::with_capacity(self.config.settled_variants);
+        let mut starts = Vec::with_capacity(self.config.settled_variants);
+        for k in 0..self.config.settled_variants {
+            let mut rng = variant_rng(seed, k);
+            let jitter = uniform_offset(&mut rng, r.start_jitter_m, true);
+            let mut spec = base_spec(scene, path);
+            spec = r.package.apply(&spec, &mut rng);
+            let j = jitter.as_vec3().to_array();
+            let pl = &mut spec.placement;
+            for (c, d) in pl.package_origin.iter_mut().zip(j) {
+                *c += d;
+            }
+            for (c, d) in pl.cup_point.iter_mut().zip(j) {
+                *c += d;
+            }
+            for (c, d) in pl.disc_position.iter_mut().zip(j) {
+                *c += d;
+            }
+            if let Some(hold) = &mut pl.disc_hold {
+                for (c, d) in hold.iter_mut().zip(j) {
+                    *c += d;
+                }
+            }
+            let start = path.points[0] + jitter;
+            let q = path.start_orientation;
+            spec.trajectory =
+                Arc::new(ToolTrajectory::hold(start.to_array(), [q.x, q.y, q.z, q.w]));
+            specs.push(spec);
+            starts.push(start);
+        }
+        let (snapshots, held) = settle(&self.model, specs, self.config.settle_s)?;
+        self.replaced_variants = held.iter().filter(|&&h| !h).count();
+        self.variants = snapshots
+            .into_iter()
+            .zip(starts)
+            .zip(held)
+            .map(|((snapshot, tool_start), held)| {
+                if held {
+                    Variant {
+                        snapshot,
+                        tool_start,
+                    }
+                } else {
+                    self.fallback.clone()
+                }
+            })
+            .collect();
+        Ok(())
+    }
+
+    /// Starts a new episode in copy `env`: a random settled variant, target tilt, path and goal.
+    fn start_episode(&mut self, env: usize) -> Result<(), EnvError> {
+        if self.variants.is_empty() {
+            return Err(EnvError::Simulator("no settled package variant".into()));
+        }
+        let r = &self.config.randomization;
+        let rng = &mut self.rngs[env];
+        let variant = rng.random_range(0..self.variants.len());
+        let tilt = uniform(rng, r.target_tilt_deg[0], r.target_tilt_deg[1]).to_radians();
+        let goal_jitter = uniform_offset(rng, r.goal_jitter_m, false);
+        let path = nearest_path(&self.paths, tilt)
+            .ok_or_else(|| EnvError::Simulator("no transport path".into()))?;
+        let tool_start = self.variants[variant].tool_start;
+        self.sim
+            .restore(env, &self.variants[variant].snapshot)
+            .map_err(sim_error)?;
+        self.sim.read_states(&mut self.states).map_err(sim_error)?;
+        let state = self.states[env];
+        self.episodes[env] = Episode {
+            path,
+            variant,
+            start_offset: tool_start - self.paths[path].points[0],
+            goal_jitter,
+            target_tilt: tilt,
+            previous_object_in_tool: v3(state.disc_in_tool.position),
+            start_time: state.time,
+            ..Episode::default()
+        };
+        Ok(())
+    }
+
+    /// Ends the episodes of the copies `finished` and fills their observation rows: each is
+    /// retired in evaluation mode, else a new episode starts in it.
+    pub(super) fn finish_episodes(
+        &mut self,
+        finished: &[usize],
+        out: &mut StepBuffers,
+    ) -> Result<(), EnvError> {
+        if self.retire_finished {
+            for &env in finished {
+                self.sim.retire(env).map_err(sim_error)?;
+                self.retired[env] = true;
+                self.observe_into(env, out, false);
+            }
+            return Ok(());
+        }
+        for &env in finished {
+            self.start_episode(env)?;
+        }
+        if !finished.is_empty() {
+            self.sim
+                .read_cup_loads(&mut self.loads)
+                .map_err(sim_error)?;
+            for &env in finished {
+                self.observe_into(env, out, false);
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::transport::test_support::{config, env, test_table};
+    use crate::transport::{load_paths, load_scene};
+
+    #[test]
+    fn randomised_values_stay_in_range_and_follow_the_seed_on_any_thread_count() {
+        let text = test_table();
+        let run = |threads: usize, seed: u64| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut t = env(&text, 3);
+                let mut out = t.buffers();
+                t.try_reset(seed, &mut out).unwrap();
+                // Every randomised package of this configuration stays sealed.
+                assert_eq!(t.replaced_variants(), 0);
+                let conditions: Vec<EpisodeConditions> = (0..3).map(|e| t.conditions(e)).collect();
+                (conditions, out)
+            })
+        };
+        let (conditions, out) = run(1, 7);
+        for c in &conditions {
+            assert!(
+                (30f64.to_radians()..=60f64.to_radians()).contains(&c.target_tilt_rad),
+                "{c:?}"
+            );
+            assert!(
+                DVec3::from(c.goal_jitter_m).length() <= 0.03 + 1e-12,
+                "{c:?}"
+            );
+            let start = DVec3::from(c.start_offset_m);
+            assert!(
+                start.length() <= 0.02 + 1e-6 && start.y.abs() < 1e-9,
+                "{c:?}"
+            );
+            assert!((0.287..=0.595).contains(&c.object_mass_kg), "{c:?}");
+            assert!(
+                c.package_yaw_rad.abs() <= 10f32.to_radians() + 1e-6,
+                "{c:?}"
+            );
+            assert!(c.variant < 2);
+            // The path is the recording whose final tilt is nearest the target.
+            let nearest = match c.target_tilt_rad.to_degrees() {
+                d if d < 39.2 => "HHMHL",
+                d if d < 53.9 => "HHHHM",
+                _ => "HHHHH",
+            };
+            if (c.target_tilt_rad.to_degrees() - 39.2).abs() > 0.5
+                && (c.target_tilt_rad.to_degrees() - 53.9).abs() > 0.5
+            {
+                assert_eq!(c.path_id, nearest, "{c:?}");
+            }
+        }
+        assert!(conditions
+            .windows(2)
+            .any(|w| w[0].target_tilt_rad != w[1].target_tilt_rad));
+        let (again, out_again) = run(2, 7);
+        assert_eq!(conditions, again);
+        assert_eq!(out, out_again, "same seed, two threads: bit-identical");
+        let (other, _) = run(1, 8);
+        assert_ne!(conditions, other);
+    }
+
+    #[test]
+    fn retired_copies_stop_while_the_others_run_on_unchanged() {
+        // Copy 0 is driven over-fast on a weak seal and fails; copy 1 is held still. With finished
+        // copies retired, copy 0 keeps its final observation and earns nothing from then on, and
+        // copy 1 runs exactly as it does when finished copies restart.
+        let text = test_table()
+            .replace("settled_variants = 2", "settled_variants = 1")
+            .replace("time_limit_s = 12.0", "time_limit_s = 2.0");
+        let config = config(&text);
+        let mut scene = load_scene(&config, "test.toml").unwrap();
+        scene.seal.vacuum_kpa = 7.0;
+        let paths = load_paths(&config, scene.disc.hold_at_recorded_start, "test.toml").unwrap();
+        let make =
+            || Transport::with_scene(config.clone(), scene.clone(), paths.clone(), 2).unwrap();
+        let (mut retiring, mut restarting) = (make(), make());
+        retiring.set_retire_finished(true);
+        let (mut a, mut b) = (retiring.buffers(), restarting.buffers());
+        retiring.try_reset(5, &mut a).unwrap();
+        restarting.try_reset(5, &mut b).unwrap();
+        let dim = retiring.spec().observation.dim();
+        let mut failed: Option<(usize, Vec<f32>)> = None;
+        for step in 0..40 {
+            let tilt = if step % 2 == 0 { 0.35 } else { -0.35 };
+            let actions = [0.945, tilt, -tilt, 0.0, 0.0, 0.0];
+            retiring.step(&actions, &mut a).unwrap();
+            restarting.step(&actions, &mut b).unwrap();
+            assert_eq!(a.rewards[1], b.rewards[1], "step {step}");
+            assert_eq!(a.done(1), b.done(1), "step {step}");
+            if a.done(1) {
+                assert_eq!(a.final_obs[dim..], b.final_obs[dim..], "step {step}");
+            } else {
+                assert_eq!(a.obs[dim..], b.obs[dim..], "step {step}");
+            }
+            match &failed {
+                None if a.done(0) => {
+                    assert!(a.terminated[0] && b.terminated[0], "step {step}");
+                    assert!(retiring.is_retired(0) && !restarting.is_retired(0));
+                    // Its row holds the final observation, not a new episode's first one.
+                    assert_eq!(a.obs[..dim], a.final_obs[..dim]);
+                    assert_ne!(a.obs[..dim], b.obs[..dim]);
+                    failed = Some((step, a.obs[..dim].to_vec()));
+                }
+                Some((_, final_obs)) => {
+                    assert!(!a.done(0) && a.rewards[0] == 0.0, "step {step}");
+                    assert_eq!(&a.obs[..dim], &final_obs[..], "step {step}");
+                }
+                None => {}
+            }
+        }
+        let (step, _) = failed.expect("copy 0 failed");
+        assert!(step < 39, "failed at step {step}");
+        // The held copy reached the time limit in both.
+        assert!(a.truncated[1] && b.truncated[1]);
+        // A reset brings the retired copy back.
+        retiring.try_reset(5, &mut a).unwrap();
+        assert!(!retiring.is_retired(0));
+    }
+}
