@@ -376,7 +376,12 @@ fn cases() -> Vec<Case> {
             name: "eval of a run with --params",
             setup: |dir| {
                 let run = run_copy(dir);
-                args(&["eval", &run, "--params", "configs/scenes/calibrated-study.toml"])
+                args(&[
+                    "eval",
+                    &run,
+                    "--params",
+                    "configs/scenes/calibrated-study.toml",
+                ])
             },
             expected: &["--params", "cannot be used with"],
         },
@@ -463,7 +468,12 @@ fn cases() -> Vec<Case> {
                     "size_m = [0.254, 0.3048]",
                     "size_m = [0.254, 0.3048, 0.012]",
                 );
-                args(&["simulate", &trajectory(), "--params", "physical-explicit.toml"])
+                args(&[
+                    "simulate",
+                    &trajectory(),
+                    "--params",
+                    "physical-explicit.toml",
+                ])
             },
             expected: &[
                 "physical-explicit.toml",
@@ -676,10 +686,13 @@ fn cases() -> Vec<Case> {
             name: "calibration into a file",
             setup: |dir| {
                 std::fs::write(dir.join("out"), "").unwrap();
-                let config = repo().join("configs/calibrate/study.toml").display().to_string();
+                let config = repo()
+                    .join("configs/calibrate/study.toml")
+                    .display()
+                    .to_string();
                 args(&["calibrate", &config, "--out", "out"])
             },
-            expected: &["out: is a file", "calibrate.toml"],
+            expected: &["out: is a file", "calibrate/study.toml"],
         },
         Case {
             name: "calibration log row outside the bounds",

@@ -342,7 +342,8 @@ upper = 2.0
             ["disc_mass_scale", "k_con_e", "k_con_d", "mu_con"]
         );
         assert_eq!(whole.sim.max_seconds, None);
-        let shipped = rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-study.toml")).unwrap();
+        let shipped =
+            rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-study.toml")).unwrap();
         assert!(shipped.disc.hold_at_recorded_start);
         assert_eq!(
             shipped.package.grid,
@@ -350,7 +351,8 @@ upper = 2.0
         );
         // The SI scene's second stage refines the first with the disc's orientation held.
         let si = CalibrateConfig::load(&configs.join("calibrate/soft-film.toml")).unwrap();
-        let si_refine = CalibrateConfig::load(&configs.join("calibrate/soft-film-stage2.toml")).unwrap();
+        let si_refine =
+            CalibrateConfig::load(&configs.join("calibrate/soft-film-stage2.toml")).unwrap();
         assert_eq!(
             Path::new(&si_refine.sim.preset),
             si.out_dir.join("calibrated.toml")
@@ -368,14 +370,16 @@ upper = 2.0
         {
             assert!(spec.lower <= 1.0e4 && spec.upper >= 2.0e4, "{}", spec.name);
         }
-        let scene = rlpkg_sim::SceneConfig::load(&configs.join("scenes/physical-real-film.toml")).unwrap();
+        let scene =
+            rlpkg_sim::SceneConfig::load(&configs.join("scenes/physical-real-film.toml")).unwrap();
         assert_eq!(
             Path::new(&stiff.sim.preset),
             Path::new("configs/scenes/physical-real-film.toml")
         );
         assert!(scene.integrator.substep_rate_hz >= 1200.0);
         let fitted =
-            rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-real-film.toml")).unwrap();
+            rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-real-film.toml"))
+                .unwrap();
         assert_eq!(
             fitted.integrator.substep_rate_hz,
             scene.integrator.substep_rate_hz
@@ -391,7 +395,8 @@ upper = 2.0
             Path::new("configs/scenes/calibrated-real-film.toml")
         );
         let coarse_fit =
-            rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-coarse-real-film.toml")).unwrap();
+            rlpkg_sim::SceneConfig::load(&configs.join("scenes/calibrated-coarse-real-film.toml"))
+                .unwrap();
         assert_eq!(
             coarse_fit.package.grid,
             [6 + 5 * coarse.sim.between, 7 + 6 * coarse.sim.between]

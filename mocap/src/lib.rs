@@ -3,6 +3,7 @@
 
 pub mod clean;
 pub mod dataset;
+pub mod derivative;
 pub mod import;
 pub mod motive;
 pub mod robot;

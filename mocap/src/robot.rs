@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::clean::rigid_fit;
 use crate::dataset::{check_increasing, read_rows, DataError, ToolTrack};
-use crate::import::gradient;
+use crate::derivative::gradient;
 
 /// Header of a robot trajectory file.
 pub const ROBOT_HEADER: [&str; 17] = [

@@ -16,7 +16,9 @@ use rlpkg_sim::{CupLoad, EpisodeSpec, Model, SceneConfig, Simulator, ToolSample,
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene_path = args.first().map_or("configs/scenes/physical-explicit.toml", |s| s.as_str());
+    let scene_path = args
+        .first()
+        .map_or("configs/scenes/physical-explicit.toml", |s| s.as_str());
     let mut scene = SceneConfig::load(Path::new(scene_path))?;
     if let Some(grid) = args.get(1) {
         let (r, c) = grid.split_once('x').ok_or("grid: expected RxC")?;

@@ -13,7 +13,7 @@ use rlpkg_sim::{
 use serde::{Deserialize, Serialize};
 
 use super::geometry::v3;
-use super::snapshot::vec3_as_array;
+use super::geometry::vec3_as_array;
 use super::{sim_error, Transport, TransportPath};
 use crate::{env_rng, EnvError, StepBuffers, VecEnv};
 

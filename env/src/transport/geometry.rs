@@ -1,5 +1,6 @@
-//! Conversions from the simulator's `f32` arrays to `f64` glam types, and the rotation between
-//! two orientations, shared by the controller, the observations and the success check.
+//! Conversions from the simulator's `f32` arrays to `f64` glam types, the rotation between two
+//! orientations (shared by the controller, the observations and the success check), and the serde
+//! form of a vector in saved episodes.
 
 use glam::{DQuat, DVec3};
 
@@ -20,4 +21,20 @@ pub(super) fn rotation_between(from: DQuat, to: DQuat) -> DVec3 {
         d = -d;
     }
     d.to_scaled_axis()
+}
+
+/// Serde of a [`DVec3`] as `[x, y, z]`.
+pub(super) mod vec3_as_array {
+    use glam::DVec3;
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    /// Writes `v` as `[x, y, z]`.
+    pub fn serialize<S: Serializer>(v: &DVec3, serializer: S) -> Result<S::Ok, S::Error> {
+        v.to_array().serialize(serializer)
+    }
+
+    /// Reads `[x, y, z]`.
+    pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<DVec3, D::Error> {
+        <[f64; 3]>::deserialize(deserializer).map(DVec3::from_array)
+    }
 }

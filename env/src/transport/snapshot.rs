@@ -11,22 +11,6 @@ use super::episode::{Episode, Variant};
 use super::{Transport, ID};
 use crate::{rng_from_words, rng_to_words, EnvError, EnvState, RNG_WORDS};
 
-/// Serde of a [`DVec3`] as `[x, y, z]`.
-pub(super) mod vec3_as_array {
-    use glam::DVec3;
-    use serde::{Deserialize, Deserializer, Serialize, Serializer};
-
-    /// Writes `v` as `[x, y, z]`.
-    pub fn serialize<S: Serializer>(v: &DVec3, serializer: S) -> Result<S::Ok, S::Error> {
-        v.to_array().serialize(serializer)
-    }
-
-    /// Reads `[x, y, z]`.
-    pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<DVec3, D::Error> {
-        <[f64; 3]>::deserialize(deserializer).map(DVec3::from_array)
-    }
-}
-
 /// Everything a [`Transport`] of the same configuration and size needs to continue exactly.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct SavedTransport {
