@@ -31,7 +31,7 @@ pub enum Task {
     /// `Transport-v0` with its `[transport]` table.
     Transport {
         /// The table.
-        config: TransportConfig,
+        config: Box<TransportConfig>,
         /// The file it came from (named in messages).
         source: String,
     },
@@ -74,7 +74,10 @@ impl Task {
             (transport::ID, Some(table)) => {
                 let source = path.display().to_string();
                 let config = TransportConfig::from_table(table, &source)?;
-                Ok(Task::Transport { config, source })
+                Ok(Task::Transport {
+                    config: Box::new(config),
+                    source,
+                })
             }
             (transport::ID, None) => fail(
                 TRANSPORT_TABLE,
@@ -115,7 +118,7 @@ impl Task {
             Task::CartPole => Box::new(CartPole::new(num_envs)),
             Task::Pendulum => Box::new(Pendulum::new(num_envs)),
             Task::Transport { config, source } => {
-                Box::new(Transport::new(config.clone(), num_envs, source)?)
+                Box::new(Transport::new((**config).clone(), num_envs, source)?)
             }
         })
     }
