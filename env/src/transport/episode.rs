@@ -200,11 +200,17 @@ impl Transport {
     pub fn try_reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
         self.settle_variants(seed)?;
         self.retired.fill(false);
+        if let Some(sensors) = &mut self.sensors {
+            sensors.reseed(seed);
+        }
         for env in 0..self.num_envs() {
             self.rngs[env] = env_rng(seed, env);
             self.start_episode(env)?;
         }
         self.read_simulator()?;
+        for env in 0..self.num_envs() {
+            self.start_sensors(env);
+        }
         out.rewards.iter_mut().for_each(|r| *r = 0.0);
         out.terminated.iter_mut().for_each(|t| *t = false);
         out.truncated.iter_mut().for_each(|t| *t = false);
@@ -343,10 +349,9 @@ impl Transport {
             self.start_episode(env)?;
         }
         if !finished.is_empty() {
-            self.sim
-                .read_cup_loads(&mut self.loads)
-                .map_err(sim_error)?;
+            self.read_loads()?;
             for &env in finished {
+                self.start_sensors(env);
                 self.observe_into(env, out, false);
             }
         }
