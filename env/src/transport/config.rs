@@ -471,7 +471,7 @@ pub fn load_scene(config: &TransportConfig, source: &str) -> Result<SceneConfig,
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transport::test_support::{config, test_table};
+    use crate::transport::test_support::{config, sensors_table, test_table};
     use crate::transport::Transport;
 
     #[test]
@@ -565,6 +565,63 @@ mod tests {
             .to_string();
         assert!(
             err.contains("transport.paths") && err.contains("NOPE"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn sensor_settings_are_checked_and_name_their_key() {
+        let text = sensors_table();
+        let sensors = config(&text).sensors.expect("sensors");
+        assert_eq!(sensors.observation_delay_steps, [1, 2]);
+        for (from, to, key) in [
+            (
+                "observation = \"sensors\"",
+                "observation = \"sonar\"",
+                "transport.observation",
+            ),
+            (
+                "action_delay_steps = [1, 2]",
+                "action_delay_steps = [2, 1]",
+                "transport.sensors.action_delay_steps",
+            ),
+            (
+                "observation_delay_steps = [1, 2]",
+                "observation_delay_steps = [1, 20]",
+                "transport.sensors.observation_delay_steps",
+            ),
+            (
+                "supply_vacuum_kpa = [20.0, 30.0]",
+                "supply_vacuum_kpa = [30.0, 20.0]",
+                "transport.sensors.supply_vacuum_kpa",
+            ),
+            (
+                "vacuum_pa = 200.0",
+                "vacuum_pa = -1.0",
+                "transport.sensors.noise.vacuum_pa",
+            ),
+            (
+                "observation = \"sensors\"",
+                "observation = \"privileged\"",
+                "transport.sensors",
+            ),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let err = TransportConfig::from_toml_str(&text.replace(from, to), "t.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("t.toml") && err.contains(key), "{to}: {err}");
+        }
+        // Sensors asked for without their table.
+        let without = test_table().replace(
+            "settle_s = 0.5\n",
+            "settle_s = 0.5\nobservation = \"sensors\"\n",
+        );
+        let err = TransportConfig::from_toml_str(&without, "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("transport.sensors") && err.contains("missing"),
             "{err}"
         );
     }
