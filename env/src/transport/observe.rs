@@ -109,13 +109,13 @@ pub(super) fn randomised_materials(config: &TransportConfig) -> Vec<String> {
         .collect()
 }
 
+/// Observation names with their units.
+type Named = Vec<(String, String)>;
+
 /// Observation groups (name, unit) of the actor and of the critic for a scene with `num_cups`
 /// cups.
-fn observation_groups(
-    config: &TransportConfig,
-    num_cups: usize,
-) -> (Vec<(String, String)>, Vec<(String, String)>) {
-    let owned = |rows: &[(&str, &str)]| -> Vec<(String, String)> {
+fn observation_groups(config: &TransportConfig, num_cups: usize) -> (Named, Named) {
+    let owned = |rows: &[(&str, &str)]| -> Named {
         rows.iter()
             .map(|(n, u)| (n.to_string(), u.to_string()))
             .collect()
