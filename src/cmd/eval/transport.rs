@@ -47,6 +47,9 @@ struct RecordedBaseline {
     timings: Vec<(String, String)>,
 }
 
+/// Deterministic actions for `n` rows of observations.
+type Act<'a> = dyn Fn(&[f32], usize) -> anyhow::Result<Vec<f32>> + 'a;
+
 /// The policy a transport evaluation drives with.
 struct Driver<'a> {
     /// What is evaluated (run folder or ONNX file), as printed.
@@ -54,7 +57,7 @@ struct Driver<'a> {
     /// The checkpoint's update and environment steps (a run folder).
     checkpoint: Option<(usize, u64)>,
     /// Deterministic actions for `n` rows of observations.
-    act: Box<dyn Fn(&[f32], usize) -> anyhow::Result<Vec<f32>> + 'a>,
+    act: Box<Act<'a>>,
     /// Where plots, the animation and `summary.json` go.
     out: PathBuf,
 }
@@ -380,7 +383,7 @@ fn render_beside_medium(
     source: &str,
     medium: &[TransportPath],
     seed: u64,
-    act: &dyn Fn(&[f32], usize) -> anyhow::Result<Vec<f32>>,
+    act: &Act,
 ) -> anyhow::Result<()> {
     use crate::render::{write_png_side_by_side, Bounds, Disc, Frame, GifWriter, View};
     let mut env = Transport::new(transport.clone(), 1, source).map_err(input_error)?;
