@@ -6,13 +6,20 @@
 //! already made into a distribution over the parameters, without new simulations:
 //!
 //! * **Surrogate**: the [`GaussianProcess`] of the optimiser, fitted to the discrepancy
-//!   `d = ln(loss)` at every evaluation in the unit cube of the [`ParamSpace`] (log units for log
-//!   parameters). A failed evaluation (diverged rollout) counts as the worst finite value, as in the
-//!   optimiser: "bad here".
+//!   `d = ln(loss)` of the finite evaluations in the unit cube of the [`ParamSpace`] (log units for
+//!   log parameters).
 //! * **Likelihood**: `L(θ) = P(d(θ) < ε) = Φ((ε − μ(θ)) / √(σ²(θ) + σ_n²))`, with the surrogate's mean
 //!   `μ`, its variance `σ²` and the learned noise variance `σ_n²`. Where the surrogate has seen no data
 //!   `σ` is large and `L` stays moderate: the posterior keeps mass where the calibration never looked
 //!   rather than ruling it out.
+//! * **Failed evaluations** (diverged rollouts) have no loss. A second Gaussian process, fitted to the
+//!   failure indicator (1 failed, 0 finite) of every evaluation, gives the probability of success
+//!   `1 − m(θ)` (its mean, clamped to [0, 1]: least-squares classification, Rasmussen & Williams
+//!   §6.5), and the likelihood is `P(success) · P(d < ε)`. Its own length scales learn which
+//!   parameters make the simulator diverge. Why not the optimiser's "worst finite value": that only
+//!   has to steer a search away, but here a failure among good points is a cliff the loss surrogate
+//!   cannot follow, so it raises the learned noise, shortens the length scales everywhere and blurs
+//!   the whole posterior.
 //! * **Threshold ε** ([`Threshold`]), by default the 0.1-quantile of the observed `ln(loss)`: "as good
 //!   as the best tenth of what the calibration tried". Why a quantile rather than `min + k σ_n`: the
 //!   simulator is deterministic, so the learned noise often sits near its lower bound and `min + k σ_n`
@@ -207,7 +214,8 @@ pub struct Profile {
     pub name: String,
     /// Grid values (SI), evenly spaced in the unit cube.
     pub values: Vec<f64>,
-    /// Lowest surrogate loss among the posterior draws with the parameter at each value.
+    /// Lowest surrogate loss among the posterior draws with the parameter at each value, over the
+    /// draws predicted to succeed (`inf` when none is).
     pub surrogate_loss: Vec<f64>,
 }
 
@@ -332,41 +340,49 @@ pub fn infer(
         }
     };
 
-    let worst = *finite.last().expect("at least one finite value");
-    let x: Vec<Vec<f64>> = evaluations
+    let unit: Vec<Vec<f64>> = evaluations
         .iter()
         .map(|e| clamp_unit(space.to_unit(&e.params)))
         .collect();
+    let evaluated: Vec<Vec<f64>> = unit
+        .iter()
+        .zip(&discrepancy)
+        .filter(|(_, d)| d.is_finite())
+        .map(|(u, _)| u.clone())
+        .collect();
     let y: Vec<f64> = discrepancy
         .iter()
-        .map(|&d| if d.is_finite() { d } else { worst })
+        .copied()
+        .filter(|d| d.is_finite())
         .collect();
-    // Streams: one per walker from 0 up (the sampler), the two last for the fit and the start.
+    // Streams: one per walker from 0 up (the sampler), the two last for the fits and the start.
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     rng.set_stream(u64::MAX - 1);
     let fit = FitOptions {
         random_starts: 4,
         steps: 200,
     };
-    let gp = GaussianProcess::fit(x.clone(), &y, None, fit, &mut rng)?;
-    let noise_var = gp.noise_variance();
-    let log_likelihood = |u: &[f64]| -> f64 {
-        if !u.iter().all(|v| (0.0..=1.0).contains(v)) {
-            return f64::NEG_INFINITY;
-        }
-        let (mean, var) = gp.predict(u);
-        log_normal_cdf((epsilon - mean) / (var + noise_var).sqrt())
+    let gp = GaussianProcess::fit(evaluated.clone(), &y, None, fit, &mut rng)?;
+    let failure = if evaluated.len() < evaluations.len() {
+        let labels: Vec<f64> = discrepancy
+            .iter()
+            .map(|d| if d.is_finite() { 0.0 } else { 1.0 })
+            .collect();
+        Some(GaussianProcess::fit(unit, &labels, None, fit, &mut rng)?)
+    } else {
+        None
     };
+    let surrogate = Surrogate {
+        noise_var: gp.noise_variance(),
+        gp,
+        failure,
+        epsilon,
+    };
+    let log_likelihood = |u: &[f64]| surrogate.log_likelihood(u);
 
     // Even, and comfortably above the sampler's minimum of 2 d + 2.
     let walkers = (4 * dim).max(32);
-    let candidates: Vec<&[f64]> = x
-        .iter()
-        .zip(&discrepancy)
-        .filter(|(_, d)| d.is_finite())
-        .map(|(u, _)| u.as_slice())
-        .collect();
-    let start = starting_walkers(&log_likelihood, &candidates, walkers, dim, settings.seed);
+    let start = starting_walkers(&log_likelihood, &evaluated, walkers, dim, settings.seed);
     let sampler = EnsembleSettings {
         burn_in: settings.burn_in,
         thin: settings.thin,
@@ -393,8 +409,10 @@ pub fn infer(
                         .map(|draw| {
                             let mut u = (*draw).clone();
                             u[i] = g;
-                            gp.predict(&u).0
+                            u
                         })
+                        .filter(|u| surrogate.success_probability(u) >= 0.5)
+                        .map(|u| surrogate.gp.predict(&u).0)
                         .fold(f64::INFINITY, f64::min)
                         .exp()
                 })
@@ -446,7 +464,7 @@ pub fn infer(
                 interval_decades: spec.log.then(|| (interval[1] / interval[0]).log10()),
                 prior_fraction: high - low,
                 identified: high - low < IDENTIFIED_FRACTION,
-                length_scale: gp.hyperparameters().log_length_scales[i].exp(),
+                length_scale: surrogate.gp.hyperparameters().log_length_scales[i].exp(),
                 profile_ratio: max / min,
             }
         })
@@ -458,7 +476,7 @@ pub fn infer(
         best_loss: finite[0].exp(),
         epsilon_rule,
         epsilon_loss: epsilon.exp(),
-        noise_std_ln_loss: noise_var.sqrt(),
+        noise_std_ln_loss: surrogate.noise_var.sqrt(),
         draws: chain.draws.len(),
         walkers,
         burn_in: settings.burn_in,
@@ -475,13 +493,50 @@ pub fn infer(
     })
 }
 
+/// The fitted surrogates and what the likelihood needs besides them.
+struct Surrogate {
+    /// Fitted to `ln(loss)` of the finite evaluations.
+    gp: GaussianProcess,
+    /// Fitted to the failure indicator (1 failed, 0 finite) of every evaluation; none when no
+    /// evaluation failed.
+    failure: Option<GaussianProcess>,
+    /// The learned noise variance `σ_n²` of `gp` (units of `ln(loss)`²).
+    noise_var: f64,
+    /// The threshold `ε` on `ln(loss)`.
+    epsilon: f64,
+}
+
+impl Surrogate {
+    /// `ln(P(success) · P(ln loss(u) < ε))` under the surrogates; `-inf` outside the unit cube and
+    /// where failure is certain.
+    fn log_likelihood(&self, u: &[f64]) -> f64 {
+        if !u.iter().all(|v| (0.0..=1.0).contains(v)) {
+            return f64::NEG_INFINITY;
+        }
+        let success = self.success_probability(u);
+        if success <= 0.0 {
+            return f64::NEG_INFINITY;
+        }
+        let (mean, var) = self.gp.predict(u);
+        success.ln() + log_normal_cdf((self.epsilon - mean) / (var + self.noise_var).sqrt())
+    }
+
+    /// The probability that the simulation succeeds at `u`: one minus the failure surrogate's mean,
+    /// clamped to [0, 1] (least-squares classification).
+    fn success_probability(&self, u: &[f64]) -> f64 {
+        self.failure
+            .as_ref()
+            .map_or(1.0, |f| (1.0 - f.predict(u).0).clamp(0.0, 1.0))
+    }
+}
+
 /// Starting points of the walkers: prior draws and the evaluated points, resampled in proportion to
 /// their likelihood (systematic resampling) and spread by a small uniform jitter so that no two
 /// walkers coincide. Starting near the likely region shortens the burn-in when the likelihood is
 /// sharp.
 fn starting_walkers(
     log_likelihood: &impl Fn(&[f64]) -> f64,
-    evaluated: &[&[f64]],
+    evaluated: &[Vec<f64>],
     walkers: usize,
     dim: usize,
     seed: u64,
@@ -489,7 +544,7 @@ fn starting_walkers(
     const JITTER: f64 = 0.02;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(u64::MAX);
-    let mut pool: Vec<Vec<f64>> = evaluated.iter().map(|u| u.to_vec()).collect();
+    let mut pool: Vec<Vec<f64>> = evaluated.to_vec();
     pool.extend((0..64 * walkers).map(|_| (0..dim).map(|_| rng.random::<f64>()).collect()));
     let log_weights: Vec<f64> = pool.iter().map(|u| log_likelihood(u)).collect();
     let top = log_weights
@@ -498,7 +553,11 @@ fn starting_walkers(
         .fold(f64::NEG_INFINITY, f64::max);
     let weights: Vec<f64> = log_weights.iter().map(|l| (l - top).exp()).collect();
     let total: f64 = weights.iter().sum();
-    let offset: f64 = rng.random();
+    let best = (0..pool.len())
+        .max_by(|&a, &b| log_weights[a].total_cmp(&log_weights[b]))
+        .expect("a non-empty pool");
+    // In (0, 1]: every target is above zero, so no zero-weight point is picked.
+    let offset = 1.0 - rng.random::<f64>();
     let mut start = Vec::with_capacity(walkers);
     let (mut cumulative, mut index) = (weights[0], 0);
     for k in 0..walkers {
@@ -507,12 +566,25 @@ fn starting_walkers(
             index += 1;
             cumulative += weights[index];
         }
-        start.push(
-            pool[index]
+        // Rounding can run past the last positive weight.
+        let centre = if weights[index] > 0.0 { index } else { best };
+        // A jittered point may leave the likely region (e.g. next to a failed evaluation): jitter
+        // less, and at worst start at the pool point itself.
+        let mut jitter = JITTER;
+        let point = loop {
+            let candidate: Vec<f64> = pool[centre]
                 .iter()
-                .map(|v| (v + JITTER * (2.0 * rng.random::<f64>() - 1.0)).clamp(0.0, 1.0))
-                .collect(),
-        );
+                .map(|v| (v + jitter * (2.0 * rng.random::<f64>() - 1.0)).clamp(0.0, 1.0))
+                .collect();
+            if log_likelihood(&candidate).is_finite() {
+                break candidate;
+            }
+            if jitter < JITTER / 100.0 {
+                break pool[centre].clone();
+            }
+            jitter /= 2.0;
+        };
+        start.push(point);
     }
     start
 }
@@ -708,6 +780,32 @@ mod tests {
                 Err(PosteriorError::Setting(_))
             ));
         }
+    }
+
+    #[test]
+    fn the_posterior_avoids_where_the_simulator_fails() {
+        // The same loss, but every evaluation with k_edge_e above unit coordinate 0.75 diverges.
+        let space = space();
+        let mut evaluations = synthetic_evaluations(&space);
+        for e in &mut evaluations {
+            if space.to_unit(&e.params)[1] > 0.75 {
+                e.loss = f64::NAN;
+            }
+        }
+        let posterior = infer(&space, &evaluations, &quick()).unwrap();
+        let edge = &posterior.summary.parameters[1];
+        assert!(posterior.summary.failed >= 8, "{:?}", posterior.summary);
+        let boundary = space.from_unit(&[0.5, 0.8])[1];
+        assert!(edge.interval[1] < boundary, "{edge:?}");
+        assert!(
+            posterior.draws.iter().filter(|d| d[1] > boundary).count() < 60,
+            "under 2 % of the draws where it fails"
+        );
+        // The profile is infinite where every draw is predicted to fail, finite elsewhere.
+        let profile = &posterior.profiles[1].surrogate_loss;
+        assert_eq!(profile.last(), Some(&f64::INFINITY), "{profile:?}");
+        assert!(profile[..14].iter().all(|l| l.is_finite()), "{profile:?}");
+        assert!(posterior.summary.parameters[0].identified);
     }
 
     #[test]
