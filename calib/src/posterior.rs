@@ -22,11 +22,12 @@
 //!   the whole posterior.
 //! * **Threshold ε** ([`Threshold`]), by default the 0.1-quantile of the observed `ln(loss)`: "as good
 //!   as the best tenth of what the calibration tried". Why a quantile rather than `min + k σ_n`: the
-//!   simulator is deterministic, so the learned noise often sits near its lower bound and `min + k σ_n`
-//!   would make `L` the indicator of the single best point, hiding exactly the trade-offs the
-//!   posterior is for; a quantile is free of units and of the noise estimate. The optimiser's samples
-//!   crowd around its optimum, so the tenth is tighter than it would be for a uniform design;
-//!   [`Threshold::Loss`] sets an absolute tolerance instead (e.g. 1.1 x the best loss: "within 10 %").
+//!   simulator is deterministic (the same parameters give the same loss), so the learned noise may
+//!   sit near its lower bound, and `min + k σ_n` would make `L` the indicator of the single best
+//!   point, hiding exactly the trade-offs the posterior is for; a quantile is free of units and of
+//!   the noise estimate. The optimiser's samples crowd around its optimum, so the tenth is tighter
+//!   than it would be for a uniform design; [`Threshold::Loss`] sets an absolute tolerance instead
+//!   (e.g. 1.1 x the best loss: "within 10 %").
 //! * **Prior**: uniform over the calibration box in the unit cube, that is log-uniform for log
 //!   parameters and uniform for linear ones.
 //! * **Sampler**: the affine-invariant ensemble sampler of [`crate::mcmc`] in the unit cube, started
@@ -320,25 +321,7 @@ pub fn infer(
             dim,
         });
     }
-    let (epsilon, epsilon_rule) = match settings.threshold {
-        Threshold::Quantile(q) if q > 0.0 && q < 1.0 => (
-            quantile(&finite, q),
-            format!("quantile {q} of the finite losses"),
-        ),
-        Threshold::Loss(loss) if loss > 0.0 && loss.is_finite() => {
-            (loss.ln(), format!("loss {loss}"))
-        }
-        Threshold::Quantile(q) => {
-            return Err(PosteriorError::Setting(format!(
-                "threshold quantile {q}: expected a value in (0, 1)"
-            )))
-        }
-        Threshold::Loss(loss) => {
-            return Err(PosteriorError::Setting(format!(
-                "threshold loss {loss}: expected a finite loss > 0"
-            )))
-        }
-    };
+    let (epsilon, epsilon_rule) = epsilon(settings.threshold, &finite)?;
 
     let unit: Vec<Vec<f64>> = evaluations
         .iter()
@@ -391,42 +374,7 @@ pub fn infer(
     };
     let chain = mcmc::sample(&log_likelihood, &start, settings.draws, &sampler)?;
 
-    let stride = (chain.draws.len() / settings.profile_draws).max(1);
-    let profile_draws: Vec<&Vec<f64>> = chain.draws.iter().step_by(stride).collect();
-    let profiles: Vec<Profile> = space
-        .specs()
-        .iter()
-        .enumerate()
-        .map(|(i, spec)| {
-            let grid: Vec<f64> = (0..settings.profile_points)
-                .map(|k| k as f64 / (settings.profile_points - 1) as f64)
-                .collect();
-            let surrogate_loss = grid
-                .par_iter()
-                .map(|&g| {
-                    profile_draws
-                        .iter()
-                        .map(|draw| {
-                            let mut u = (*draw).clone();
-                            u[i] = g;
-                            u
-                        })
-                        .filter(|u| surrogate.success_probability(u) >= 0.5)
-                        .map(|u| surrogate.gp.predict(&u).0)
-                        .fold(f64::INFINITY, f64::min)
-                        .exp()
-                })
-                .collect();
-            Profile {
-                name: spec.name.clone(),
-                values: grid
-                    .iter()
-                    .map(|&g| coordinate_value(space, i, g))
-                    .collect(),
-                surrogate_loss,
-            }
-        })
-        .collect();
+    let profiles = profiles(space, &surrogate, &chain.draws, settings);
 
     let best = evaluations
         .iter()
@@ -435,38 +383,17 @@ pub fn infer(
         .min_by(|a, b| a.1.total_cmp(b.1))
         .map(|(e, _)| e)
         .expect("at least one finite value");
-    let parameters = space
-        .specs()
-        .iter()
-        .enumerate()
-        .map(|(i, spec)| {
-            let mut coordinate: Vec<f64> = chain.draws.iter().map(|d| d[i]).collect();
-            coordinate.sort_by(f64::total_cmp);
-            let [low, median, high] = [0.05, 0.5, 0.95].map(|q| quantile(&coordinate, q));
-            let interval = [
-                coordinate_value(space, i, low),
-                coordinate_value(space, i, high),
-            ];
-            let profile = &profiles[i].surrogate_loss;
-            let (min, max) = profile
-                .iter()
-                .fold((f64::INFINITY, 0.0f64), |(lo, hi), &v| {
-                    (lo.min(v), hi.max(v))
-                });
-            ParameterSummary {
-                name: spec.name.clone(),
-                log: spec.log,
-                lower: spec.lower,
-                upper: spec.upper,
-                best: best.params[i],
-                median: coordinate_value(space, i, median),
-                interval,
-                interval_decades: spec.log.then(|| (interval[1] / interval[0]).log10()),
-                prior_fraction: high - low,
-                identified: high - low < IDENTIFIED_FRACTION,
-                length_scale: surrogate.gp.hyperparameters().log_length_scales[i].exp(),
-                profile_ratio: max / min,
-            }
+    let parameters = (0..dim)
+        .map(|i| {
+            let length_scale = surrogate.gp.hyperparameters().log_length_scales[i].exp();
+            summarise(
+                space,
+                i,
+                &chain.draws,
+                &profiles[i],
+                best.params[i],
+                length_scale,
+            )
         })
         .collect();
 
@@ -491,6 +418,111 @@ pub fn infer(
         summary,
         profiles,
     })
+}
+
+/// The threshold `ε` on `ln(loss)` and how it was chosen, given the sorted finite `ln(loss)`.
+fn epsilon(threshold: Threshold, sorted: &[f64]) -> Result<(f64, String), PosteriorError> {
+    match threshold {
+        Threshold::Quantile(q) if q > 0.0 && q < 1.0 => Ok((
+            quantile(sorted, q),
+            format!("quantile {q} of the finite losses"),
+        )),
+        Threshold::Loss(loss) if loss > 0.0 && loss.is_finite() => {
+            Ok((loss.ln(), format!("loss {loss}")))
+        }
+        Threshold::Quantile(q) => Err(PosteriorError::Setting(format!(
+            "threshold quantile {q}: expected a value in (0, 1)"
+        ))),
+        Threshold::Loss(loss) => Err(PosteriorError::Setting(format!(
+            "threshold loss {loss}: expected a finite loss > 0"
+        ))),
+    }
+}
+
+/// The surrogate-loss profile of every parameter over `settings.profile_draws` of the `draws`
+/// (unit cube), evenly spaced in the chain.
+fn profiles(
+    space: &ParamSpace,
+    surrogate: &Surrogate,
+    draws: &[Vec<f64>],
+    settings: &PosteriorSettings,
+) -> Vec<Profile> {
+    let stride = (draws.len() / settings.profile_draws).max(1);
+    let grid: Vec<f64> = (0..settings.profile_points)
+        .map(|k| k as f64 / (settings.profile_points - 1) as f64)
+        .collect();
+    space
+        .specs()
+        .iter()
+        .enumerate()
+        .map(|(i, spec)| {
+            let surrogate_loss = grid
+                .par_iter()
+                .map(|&g| {
+                    draws
+                        .iter()
+                        .step_by(stride)
+                        .map(|draw| {
+                            let mut u = draw.clone();
+                            u[i] = g;
+                            u
+                        })
+                        .filter(|u| surrogate.success_probability(u) >= 0.5)
+                        .map(|u| surrogate.gp.predict(&u).0)
+                        .fold(f64::INFINITY, f64::min)
+                        .exp()
+                })
+                .collect();
+            Profile {
+                name: spec.name.clone(),
+                values: grid
+                    .iter()
+                    .map(|&g| coordinate_value(space, i, g))
+                    .collect(),
+                surrogate_loss,
+            }
+        })
+        .collect()
+}
+
+/// The posterior summary of parameter `i` from the `draws` (unit cube), its profile, its value at
+/// the best evaluation and the surrogate's length scale along it.
+fn summarise(
+    space: &ParamSpace,
+    i: usize,
+    draws: &[Vec<f64>],
+    profile: &Profile,
+    best: f64,
+    length_scale: f64,
+) -> ParameterSummary {
+    let spec = &space.specs()[i];
+    let mut coordinate: Vec<f64> = draws.iter().map(|d| d[i]).collect();
+    coordinate.sort_by(f64::total_cmp);
+    let [low, median, high] = [0.05, 0.5, 0.95].map(|q| quantile(&coordinate, q));
+    let interval = [
+        coordinate_value(space, i, low),
+        coordinate_value(space, i, high),
+    ];
+    let (min, max) = profile
+        .surrogate_loss
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        });
+    ParameterSummary {
+        name: spec.name.clone(),
+        log: spec.log,
+        lower: spec.lower,
+        upper: spec.upper,
+        best,
+        median: coordinate_value(space, i, median),
+        interval,
+        interval_decades: spec.log.then(|| (interval[1] / interval[0]).log10()),
+        prior_fraction: high - low,
+        identified: high - low < IDENTIFIED_FRACTION,
+        length_scale,
+        profile_ratio: max / min,
+    }
 }
 
 /// The fitted surrogates and what the likelihood needs besides them.
