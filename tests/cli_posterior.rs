@@ -259,3 +259,222 @@ fn bad_inputs_exit_with_2_naming_the_file_and_what_was_expected() {
     );
     fails_with(&["--epsilon-loss=-1"], &["--epsilon-loss", "> 0"]);
 }
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// A dataset with the first `frames` frames of HHHHH, in split `split`.
+fn small_dataset(dir: &Path, frames: usize, split: &str) -> PathBuf {
+    let source = repo().join("data/deformable-sim-real/HHHHH");
+    let root = dir.join("data");
+    let target = root.join("HHHHH");
+    std::fs::create_dir_all(&target).unwrap();
+    for file in ["tool.csv", "object.csv"] {
+        let body = std::fs::read_to_string(source.join(file)).unwrap();
+        let kept: Vec<&str> = body.lines().take(frames + 1).collect();
+        std::fs::write(target.join(file), kept.join("\n") + "\n").unwrap();
+    }
+    let markers = std::fs::read_to_string(source.join("markers.csv")).unwrap();
+    let kept: Vec<&str> = markers
+        .lines()
+        .enumerate()
+        .filter(|(i, line)| {
+            *i == 0 || line.split(',').next().unwrap().parse::<usize>().unwrap() < frames
+        })
+        .map(|(_, line)| line)
+        .collect();
+    std::fs::write(target.join("markers.csv"), kept.join("\n") + "\n").unwrap();
+    std::fs::copy(source.join("meta.toml"), target.join("meta.toml")).unwrap();
+    let duration = (frames - 1) as f64 / 240.0;
+    std::fs::write(
+        root.join("manifest.toml"),
+        format!(
+            "[[trajectory]]\nid = \"HHHHH\"\nsplit = \"{split}\"\nframes = {frames}\n\
+             duration_s = {duration}\nobject_total_mass_kg = 0.569592\n"
+        ),
+    )
+    .unwrap();
+    root
+}
+
+/// The study's scene on the coarsest grid (6 x 7) with a 0.2 s rest period instead of 2 s.
+fn quick_preset(dir: &Path) -> PathBuf {
+    let reference = std::fs::read_to_string(repo().join("configs/scenes/study.toml")).unwrap();
+    let path = dir.join("quick.toml");
+    let quick = reference
+        .replace("rest_time_s = 2.0", "rest_time_s = 0.2")
+        .replace("grid = [21, 25]", "grid = [6, 7]")
+        // The disc slips through the 6 x 7 sheet; these tests are about the machinery.
+        .replace("[health]", "[health]\nobject_outside = false");
+    assert_ne!(quick, reference);
+    std::fs::write(&path, quick).unwrap();
+    path
+}
+
+#[test]
+fn eval_of_a_posterior_gives_the_posterior_predictive_table_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "test");
+    let preset = quick_preset(dir.path());
+    // The synthetic calibration's box on the quick scene and the small dataset.
+    let cfg = config(dir.path(), &BOX);
+    let body = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("data/deformable-sim-real", data.to_str().unwrap())
+        .replace(
+            "preset = \"reference\"",
+            &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
+        );
+    std::fs::write(&cfg, body).unwrap();
+    let folder = calibration(dir.path(), 48);
+    let mut args = vec!["posterior", cfg.to_str().unwrap()];
+    args.extend(QUICK);
+    let out = rlpkg(&args, "2");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let summary_path = folder.join("posterior").join("summary.json");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary_path).unwrap()).unwrap();
+    assert_eq!(summary["config"], cfg.to_str().unwrap());
+
+    let eval = |params: &Path, draws: &str, out: &Path| {
+        let output = rlpkg(
+            &[
+                "eval",
+                "--params",
+                params.to_str().unwrap(),
+                "--draws",
+                draws,
+                "--data",
+                data.to_str().unwrap(),
+                "--split",
+                "test",
+                "--out",
+                out.to_str().unwrap(),
+                "--json",
+            ],
+            "2",
+        );
+        assert!(output.status.success(), "{}", text(&output.stderr));
+        serde_json::from_slice::<serde_json::Value>(&output.stdout).unwrap()
+    };
+    let four = eval(&summary_path, "4", &dir.path().join("eval4"));
+    let row = &four["table1"][0];
+    assert_eq!(row["split"], "test");
+    assert_eq!(
+        row["draws"].as_u64().unwrap() + row["diverged_draws"].as_u64().unwrap(),
+        4
+    );
+    assert!(row["draws"].as_u64().unwrap() >= 2, "{row}");
+    for column in ["chamfer_mean_m", "chamfer_max_m", "object_mse_mean_m2"] {
+        let band = &row[column];
+        let [low, median, high] = ["low", "median", "high"].map(|k| band[k].as_f64().unwrap());
+        assert!(
+            low <= median && median <= high && low > 0.0,
+            "{column}: {band}"
+        );
+    }
+    let per_draw = four["per_draw"].as_array().unwrap();
+    assert_eq!(per_draw.len(), 4);
+    assert_eq!(per_draw[0][0]["frames"], 30);
+    let means: Vec<f64> = per_draw
+        .iter()
+        .map(|d| d[0]["chamfer_m"]["mean"].as_f64().unwrap())
+        .collect();
+    assert!(
+        means.iter().any(|m| *m != means[0]),
+        "the draws differ: {means:?}"
+    );
+    assert_eq!(four["draw_rows"], serde_json::json!([0, 250, 500, 750]));
+    // The samples file names the same posterior; one draw alone replays as in the batch.
+    let samples_path = folder.join("posterior").join("samples.csv");
+    let one = eval(&samples_path, "1", &dir.path().join("eval1"));
+    assert_eq!(one["per_draw"][0], per_draw[0]);
+
+    // A scene file still gives the plain Table 1 and refuses --draws.
+    let refused = rlpkg(
+        &[
+            "eval",
+            "--params",
+            preset.to_str().unwrap(),
+            "--draws",
+            "4",
+            "--data",
+            data.to_str().unwrap(),
+        ],
+        "1",
+    );
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(text(&refused.stderr).contains("--draws"));
+    // A posterior folder without its summary names what is missing.
+    std::fs::remove_file(&summary_path).unwrap();
+    let missing = rlpkg(
+        &[
+            "eval",
+            "--params",
+            samples_path.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+        ],
+        "1",
+    );
+    assert_eq!(missing.status.code(), Some(2));
+    assert!(
+        text(&missing.stderr).contains("summary.json"),
+        "{}",
+        text(&missing.stderr)
+    );
+}
+
+#[test]
+fn recover_prints_the_recovery_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 48, "train");
+    let preset = quick_preset(dir.path());
+    // The membrane stiffness acts on the package; the cup damping does not act within 0.2 s.
+    let cfg = config(
+        dir.path(),
+        &[("k_tri_e", 1e3, 1e6, true), ("k_cup_d", 1e-3, 1e1, true)],
+    );
+    let body = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("data/deformable-sim-real", data.to_str().unwrap())
+        .replace(
+            "preset = \"reference\"",
+            &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
+        )
+        .replace("initial_points = 15", "initial_points = 8");
+    std::fs::write(&cfg, body).unwrap();
+    let out_dir = dir.path().join("recovery");
+    let mut args = vec![
+        "posterior",
+        cfg.to_str().unwrap(),
+        "--recover",
+        "1",
+        "--iterations",
+        "3",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ];
+    args.extend(QUICK);
+    let out = rlpkg(&args, "2");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let row = |name: &str| {
+        stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("0      {name}")))
+            .unwrap_or_else(|| panic!("no row for {name}:\n{stdout}"))
+            .to_string()
+    };
+    assert!(row("k_tri_e").ends_with("yes"), "{stdout}");
+    assert!(row("k_cup_d").contains("not determined"), "{stdout}");
+    assert!(stdout.contains("marker noise"), "{stdout}");
+    let recovery: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("recovery.json")).unwrap())
+            .unwrap();
+    let truth = &recovery["truths"][0];
+    assert_eq!(truth["parameters"][1]["identified"], false);
+    assert!(truth["parameters"][1]["relative_error"].is_null());
+    assert!(out_dir.join("truth-0").join("evaluations.csv").exists());
+}

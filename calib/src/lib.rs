@@ -6,6 +6,7 @@
 //! * [`evallog`] — the resumable CSV log of evaluations;
 //! * [`driver`] — the calibration loop (ask, evaluate, log, tell) and its output files;
 //! * [`posterior`] — an approximate posterior from a calibration's evaluations (BOLFI);
+//! * [`recovery`] — parameter recovery: calibrating synthetic recordings of known parameters back;
 //! * [`mcmc`] — the affine-invariant ensemble sampler the posterior draws with;
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
 //! * [`config`] — `configs/calibrate/study.toml`;
@@ -21,6 +22,7 @@ pub mod gp;
 pub mod mcmc;
 pub mod objective;
 pub mod posterior;
+pub mod recovery;
 pub mod space;
 
 /// The loss and the evaluation helpers live with the replay set-up; re-exported under their old

@@ -36,17 +36,27 @@
 //!
 //! Per parameter: the median and the 90 % credible interval (5 % and 95 % quantiles; their ratio in
 //! decades for log parameters), the share of the prior range the interval covers, and **identified**
-//! when it covers less than half ([`IDENTIFIED_RULE`]; a flat posterior covers 0.9). The
+//! when it covers less than half and the loss profile rises by at least 10 % over the range
+//! ([`IDENTIFIED_RULE`]; a flat posterior covers 0.9). The
 //! **profile** of the surrogate loss along a grid over the box (log-spaced for log parameters): at
 //! every grid value, the lowest surrogate loss `exp(μ)` among posterior draws with that parameter
-//! set to the value. A flat profile means the loss does not tell the values apart.
+//! set to the value. A flat profile means the loss does not tell the values apart; its curvature at
+//! the minimum (per decade² for log parameters) says how sharp the optimum is.
 
 use std::path::{Path, PathBuf};
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use serde::Serialize;
+
+mod summary;
+mod surrogate;
+
+pub use summary::{profiles_csv, samples_csv};
+pub use surrogate::log_normal_cdf;
+
+use summary::{profiles, quantile, summarise};
+use surrogate::{starting_walkers, Surrogate};
 
 use crate::driver::METRIC_NAMES;
 use crate::evallog::{EvaluationLog, LogError};
@@ -56,10 +66,16 @@ use crate::space::ParamSpace;
 
 /// How a parameter is called identified, as printed with the table.
 pub const IDENTIFIED_RULE: &str =
-    "identified: the 90 % credible interval covers less than half of the search range (log units for log parameters)";
+    "identified: the 90 % credible interval covers less than half of the \
+     search range (in decades for log parameters) and the loss profile rises by at least 10 % from \
+     its lowest value over the range";
 
-/// Share of the prior range below which a parameter's 90 % interval counts as identified.
+/// Share of the prior range below which a parameter's 90 % interval counts as narrow.
 const IDENTIFIED_FRACTION: f64 = 0.5;
+
+/// Highest over lowest profile loss from which the loss is taken to depend on a parameter: with a
+/// flat profile a narrow interval comes from the surrogate, not from the recordings.
+const PROFILE_RISE: f64 = 1.1;
 
 /// Errors of the posterior.
 #[derive(Debug, thiserror::Error)]
@@ -166,13 +182,16 @@ pub struct ParameterSummary {
     pub interval_decades: Option<f64>,
     /// Share of the search range (log units for log parameters) the interval covers.
     pub prior_fraction: f64,
-    /// Whether the interval covers less than half of the search range.
+    /// Whether the parameter is identified ([`IDENTIFIED_RULE`]).
     pub identified: bool,
     /// The surrogate's length scale along this parameter (unit-cube units): long means the loss
     /// hardly changes along it.
     pub length_scale: f64,
     /// Highest over lowest surrogate loss along the profile.
     pub profile_ratio: f64,
+    /// Curvature of `ln(loss)` along the profile at its minimum, per decade² for log parameters
+    /// and per search range² for linear ones (NaN, written as null, without three finite points).
+    pub profile_curvature: f64,
 }
 
 /// Everything [`infer`] reports besides the draws, as written to `summary.json`.
@@ -439,247 +458,15 @@ fn epsilon(threshold: Threshold, sorted: &[f64]) -> Result<(f64, String), Poster
     }
 }
 
-/// The surrogate-loss profile of every parameter over `settings.profile_draws` of the `draws`
-/// (unit cube), evenly spaced in the chain.
-fn profiles(
-    space: &ParamSpace,
-    surrogate: &Surrogate,
-    draws: &[Vec<f64>],
-    settings: &PosteriorSettings,
-) -> Vec<Profile> {
-    let stride = (draws.len() / settings.profile_draws).max(1);
-    let grid: Vec<f64> = (0..settings.profile_points)
-        .map(|k| k as f64 / (settings.profile_points - 1) as f64)
-        .collect();
-    space
-        .specs()
-        .iter()
-        .enumerate()
-        .map(|(i, spec)| {
-            let surrogate_loss = grid
-                .par_iter()
-                .map(|&g| {
-                    draws
-                        .iter()
-                        .step_by(stride)
-                        .map(|draw| {
-                            let mut u = draw.clone();
-                            u[i] = g;
-                            u
-                        })
-                        .filter(|u| surrogate.success_probability(u) >= 0.5)
-                        .map(|u| surrogate.gp.predict(&u).0)
-                        .fold(f64::INFINITY, f64::min)
-                        .exp()
-                })
-                .collect();
-            Profile {
-                name: spec.name.clone(),
-                values: grid
-                    .iter()
-                    .map(|&g| coordinate_value(space, i, g))
-                    .collect(),
-                surrogate_loss,
-            }
-        })
-        .collect()
-}
-
-/// The posterior summary of parameter `i` from the `draws` (unit cube), its profile, its value at
-/// the best evaluation and the surrogate's length scale along it.
-fn summarise(
-    space: &ParamSpace,
-    i: usize,
-    draws: &[Vec<f64>],
-    profile: &Profile,
-    best: f64,
-    length_scale: f64,
-) -> ParameterSummary {
-    let spec = &space.specs()[i];
-    let mut coordinate: Vec<f64> = draws.iter().map(|d| d[i]).collect();
-    coordinate.sort_by(f64::total_cmp);
-    let [low, median, high] = [0.05, 0.5, 0.95].map(|q| quantile(&coordinate, q));
-    let interval = [
-        coordinate_value(space, i, low),
-        coordinate_value(space, i, high),
-    ];
-    let (min, max) = profile
-        .surrogate_loss
-        .iter()
-        .fold((f64::INFINITY, 0.0f64), |(lo, hi), &v| {
-            (lo.min(v), hi.max(v))
-        });
-    ParameterSummary {
-        name: spec.name.clone(),
-        log: spec.log,
-        lower: spec.lower,
-        upper: spec.upper,
-        best,
-        median: coordinate_value(space, i, median),
-        interval,
-        interval_decades: spec.log.then(|| (interval[1] / interval[0]).log10()),
-        prior_fraction: high - low,
-        identified: high - low < IDENTIFIED_FRACTION,
-        length_scale,
-        profile_ratio: max / min,
-    }
-}
-
-/// The fitted surrogates and what the likelihood needs besides them.
-struct Surrogate {
-    /// Fitted to `ln(loss)` of the finite evaluations.
-    gp: GaussianProcess,
-    /// Fitted to the failure indicator (1 failed, 0 finite) of every evaluation; none when no
-    /// evaluation failed.
-    failure: Option<GaussianProcess>,
-    /// The learned noise variance `σ_n²` of `gp` (units of `ln(loss)`²).
-    noise_var: f64,
-    /// The threshold `ε` on `ln(loss)`.
-    epsilon: f64,
-}
-
-impl Surrogate {
-    /// `ln(P(success) · P(ln loss(u) < ε))` under the surrogates; `-inf` outside the unit cube and
-    /// where failure is certain.
-    fn log_likelihood(&self, u: &[f64]) -> f64 {
-        if !u.iter().all(|v| (0.0..=1.0).contains(v)) {
-            return f64::NEG_INFINITY;
-        }
-        let success = self.success_probability(u);
-        if success <= 0.0 {
-            return f64::NEG_INFINITY;
-        }
-        let (mean, var) = self.gp.predict(u);
-        success.ln() + log_normal_cdf((self.epsilon - mean) / (var + self.noise_var).sqrt())
-    }
-
-    /// The probability that the simulation succeeds at `u`: one minus the failure surrogate's mean,
-    /// clamped to [0, 1] (least-squares classification).
-    fn success_probability(&self, u: &[f64]) -> f64 {
-        self.failure
-            .as_ref()
-            .map_or(1.0, |f| (1.0 - f.predict(u).0).clamp(0.0, 1.0))
-    }
-}
-
-/// Starting points of the walkers: prior draws and the evaluated points, resampled in proportion to
-/// their likelihood (systematic resampling) and spread by a small uniform jitter so that no two
-/// walkers coincide. Starting near the likely region shortens the burn-in when the likelihood is
-/// sharp.
-fn starting_walkers(
-    log_likelihood: &impl Fn(&[f64]) -> f64,
-    evaluated: &[Vec<f64>],
-    walkers: usize,
-    dim: usize,
-    seed: u64,
-) -> Vec<Vec<f64>> {
-    const JITTER: f64 = 0.02;
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    rng.set_stream(u64::MAX);
-    let mut pool: Vec<Vec<f64>> = evaluated.to_vec();
-    pool.extend((0..64 * walkers).map(|_| (0..dim).map(|_| rng.random::<f64>()).collect()));
-    let log_weights: Vec<f64> = pool.iter().map(|u| log_likelihood(u)).collect();
-    let top = log_weights
-        .iter()
-        .copied()
-        .fold(f64::NEG_INFINITY, f64::max);
-    let weights: Vec<f64> = log_weights.iter().map(|l| (l - top).exp()).collect();
-    let total: f64 = weights.iter().sum();
-    let best = (0..pool.len())
-        .max_by(|&a, &b| log_weights[a].total_cmp(&log_weights[b]))
-        .expect("a non-empty pool");
-    // In (0, 1]: every target is above zero, so no zero-weight point is picked.
-    let offset = 1.0 - rng.random::<f64>();
-    let mut start = Vec::with_capacity(walkers);
-    let (mut cumulative, mut index) = (weights[0], 0);
-    for k in 0..walkers {
-        let target = (k as f64 + offset) / walkers as f64 * total;
-        while cumulative < target && index + 1 < pool.len() {
-            index += 1;
-            cumulative += weights[index];
-        }
-        // Rounding can run past the last positive weight.
-        let centre = if weights[index] > 0.0 { index } else { best };
-        // A jittered point may leave the likely region (e.g. next to a failed evaluation): jitter
-        // less, and at worst start at the pool point itself.
-        let mut jitter = JITTER;
-        let point = loop {
-            let candidate: Vec<f64> = pool[centre]
-                .iter()
-                .map(|v| (v + jitter * (2.0 * rng.random::<f64>() - 1.0)).clamp(0.0, 1.0))
-                .collect();
-            if log_likelihood(&candidate).is_finite() {
-                break candidate;
-            }
-            if jitter < JITTER / 100.0 {
-                break pool[centre].clone();
-            }
-            jitter /= 2.0;
-        };
-        start.push(point);
-    }
-    start
-}
-
-/// The value of parameter `i` at unit-cube coordinate `u`.
-fn coordinate_value(space: &ParamSpace, i: usize, u: f64) -> f64 {
-    let mut unit = vec![0.5; space.dim()];
-    unit[i] = u;
-    space.from_unit(&unit)[i]
-}
-
 fn clamp_unit(u: Vec<f64>) -> Vec<f64> {
     u.into_iter().map(|v| v.clamp(0.0, 1.0)).collect()
-}
-
-/// The `q`-quantile of sorted values, interpolating linearly between order statistics.
-fn quantile(sorted: &[f64], q: f64) -> f64 {
-    let position = q * (sorted.len() - 1) as f64;
-    let below = position.floor() as usize;
-    let above = (below + 1).min(sorted.len() - 1);
-    sorted[below] + (position - below as f64) * (sorted[above] - sorted[below])
-}
-
-/// `ln Φ(z)` of the standard normal CDF, finite far into the lower tail (where `Φ` underflows) by
-/// its asymptotic series, so that the sampler can climb out of regions of negligible likelihood.
-pub fn log_normal_cdf(z: f64) -> f64 {
-    if z > -30.0 {
-        (0.5 * libm::erfc(-z / std::f64::consts::SQRT_2)).ln()
-    } else {
-        // Φ(z) = φ(z)/|z| · (1 − 1/z² + 3/z⁴ − 15/z⁶ + …); the next term is below 2e-10 here.
-        let z2 = z * z;
-        -0.5 * z2 - (-z).ln() - 0.5 * (2.0 * std::f64::consts::PI).ln()
-            + (1.0 - 1.0 / z2 + 3.0 / (z2 * z2) - 15.0 / (z2 * z2 * z2)).ln()
-    }
-}
-
-/// `samples.csv`: a header of parameter names, then one row per draw (SI values).
-pub fn samples_csv(space: &ParamSpace, draws: &[Vec<f64>]) -> String {
-    let mut text = space.names().join(",");
-    text.push('\n');
-    for draw in draws {
-        let cells: Vec<String> = draw.iter().map(f64::to_string).collect();
-        text.push_str(&cells.join(","));
-        text.push('\n');
-    }
-    text
-}
-
-/// `profiles.csv`: `parameter,value,surrogate_loss`, one row per parameter and grid value.
-pub fn profiles_csv(profiles: &[Profile]) -> String {
-    let mut text = String::from("parameter,value,surrogate_loss\n");
-    for profile in profiles {
-        for (value, loss) in profile.values.iter().zip(&profile.surrogate_loss) {
-            text.push_str(&format!("{},{value},{loss}\n", profile.name));
-        }
-    }
-    text
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::space::ParamSpec;
+    use rand::Rng;
 
     fn space() -> ParamSpace {
         ParamSpace::new(vec![
@@ -892,25 +679,5 @@ mod tests {
             err.contains("candidate 1") && err.contains("ln(loss)"),
             "{err}"
         );
-    }
-
-    #[test]
-    fn log_normal_cdf_is_accurate_and_continuous_in_the_tail() {
-        for (z, phi) in [
-            (0.0, 0.5),
-            (1.0, 0.841_344_746_068_543),
-            (-1.96, 0.024_997_895_148_220),
-            (-10.0, 7.619_853_024_160_527e-24),
-        ] {
-            let got = log_normal_cdf(z).exp();
-            assert!(
-                (got - phi).abs() < 1e-12 * phi.max(1e-300) + 1e-15,
-                "Φ({z}) = {got}"
-            );
-        }
-        // The two branches meet at z = −30.
-        let erfc_branch = (0.5 * libm::erfc(30.0 / std::f64::consts::SQRT_2)).ln();
-        assert!((log_normal_cdf(-30.0) - erfc_branch).abs() < 1e-8);
-        assert!(log_normal_cdf(-1e3).is_finite() && log_normal_cdf(-1e3) < -4e5);
     }
 }
