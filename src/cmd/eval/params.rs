@@ -104,10 +104,7 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
             posterior: params_path,
             draws: args.draws.unwrap_or(DEFAULT_DRAWS),
             split: args.split.as_deref().unwrap_or("test"),
-            data: args
-                .data
-                .as_deref()
-                .unwrap_or(Path::new("data/deformable-sim-real")),
+            data: args.data.as_deref(),
             out: args.out.as_deref(),
             json: args.json,
         });

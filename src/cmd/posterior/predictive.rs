@@ -36,8 +36,8 @@ pub struct PredictiveArgs<'a> {
     pub draws: usize,
     /// `train`, `test` or `all`.
     pub split: &'a str,
-    /// Dataset folder.
-    pub data: &'a Path,
+    /// Dataset folder [default: the calibration config's `data`].
+    pub data: Option<&'a Path>,
     /// Output folder.
     pub out: Option<&'a Path>,
     /// Print JSON instead of the table.
@@ -155,7 +155,8 @@ pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
             )))
         }
     };
-    let dataset = Dataset::open(args.data).map_err(input_error)?;
+    let data = args.data.unwrap_or(&config.data);
+    let dataset = Dataset::open(data).map_err(input_error)?;
     let mut selected: Vec<(Split, Target)> = Vec::new();
     for &split in &splits {
         for id in dataset.ids(Some(split)) {
@@ -168,7 +169,7 @@ pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
     if selected.is_empty() {
         return Err(input_error(format!(
             "{}: no trajectory in split {}",
-            args.data.display(),
+            data.display(),
             args.split
         )));
     }

@@ -101,15 +101,15 @@ pub fn run(
     };
     let draws = recovery::draw_truths(&space, truths, args.seed);
     println!(
-        "recovering {truths} truth(s) of {} parameter(s) on {} synthetic trajectory(ies) [{}], {} s \
-         each, marker noise {:.3} mm per axis (estimated from the recordings); output in {}",
+        "recovering {truths} truth(s) of {} parameter(s) on {} synthetic trajectory(ies) [{}], {}, \
+         marker noise {:.3} mm per axis (estimated from the recordings); output in {}",
         space.dim(),
         ids.len(),
         ids.join(","),
         config
             .sim
             .max_seconds
-            .map_or("whole".to_string(), |s| s.to_string()),
+            .map_or("whole trajectories".to_string(), |s| format!("first {s} s of each")),
         1e3 * noise_std_m,
         out.display()
     );
