@@ -90,7 +90,7 @@ pub fn sample(
             "starting points must share one non-zero dimension".into(),
         ));
     }
-    if start.len() % 2 != 0 || start.len() < 2 * dim + 2 {
+    if !start.len().is_multiple_of(2) || start.len() < 2 * dim + 2 {
         return Err(McmcError::Ensemble(format!(
             "{} walkers in {dim}-D: expected an even number of at least {}",
             start.len(),
@@ -150,7 +150,7 @@ pub fn sample(
                 .for_each(|w| stretch_move(w, &partners, log_density, settings.stretch));
         }
         steps += 1;
-        if steps > settings.burn_in && (steps - settings.burn_in) % thin == 0 {
+        if steps > settings.burn_in && (steps - settings.burn_in).is_multiple_of(thin) {
             for w in &walkers {
                 chain.draws.push(w.position.clone());
                 chain.log_densities.push(w.log_density);
