@@ -9,6 +9,8 @@
 //! * [`loss`]: the comparison with the recording: the package Chamfer distance (the one
 //!   implementation in the workspace), the object error, the paper's Table 1;
 //! * [`evaluate`]: per-marker errors, the sensitivity perturbation, the real-time factor;
+//! * [`synthetic`]: synthetic recordings made by the simulator from known parameters, with a real
+//!   recording's occlusion and marker noise (parameter-recovery checks);
 //! * [`workload`]: many different, moving environments from the recordings (randomised masses),
 //!   e.g. for `rlpkg bench sim`.
 
@@ -17,6 +19,7 @@
 pub mod evaluate;
 pub mod loss;
 pub mod rollout;
+pub mod synthetic;
 pub mod target;
 pub mod workload;
 

@@ -59,6 +59,10 @@ pub struct EvalArgs {
     /// Sensitivity: scale every parameter by these percentages, e.g. 10,20,30 (with --params).
     #[arg(long, value_delimiter = ',', requires = "params", conflicts_with_all = ["run", "policy"])]
     pub perturb: Vec<f64>,
+    /// Posterior draws replayed when --params is an `rlpkg posterior` summary.json or samples.csv
+    /// [default: 16].
+    #[arg(long, value_name = "N", requires = "params", conflicts_with_all = ["run", "policy"])]
+    pub draws: Option<usize>,
     /// Where to write pictures and the JSON summary (with --params).
     #[arg(long, requires = "params", conflicts_with_all = ["run", "policy"])]
     pub out: Option<PathBuf>,
