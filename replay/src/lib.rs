@@ -5,7 +5,8 @@
 //! * [`target`]: the scene presets with grid and time-step overrides ([`load_scene`]) and a recording
 //!   prepared for replay ([`Target`]: placement, tool motion, the frames to compare);
 //! * [`rollout`]: named simulator parameters ([`Candidate`]) and the batched rollout of candidates x
-//!   recordings, with per-frame hooks ([`Observer`]);
+//!   recordings, with per-frame hooks ([`Observer`]) and, for pictures, extra stops and the clock of
+//!   the compared frames ([`Schedule`], [`FrameClock`]);
 //! * [`loss`]: the comparison with the recording: the package Chamfer distance (the one
 //!   implementation in the workspace), the object error, the paper's Table 1;
 //! * [`evaluate`]: per-marker errors, the sensitivity perturbation, the real-time factor;
