@@ -12,15 +12,13 @@ use rlpkg_replay::{
     rollout_scheduled, Candidate, FrameClock, FrameObservation, Observer, ReplayError, Schedule,
     Target,
 };
-use rlpkg_sim::{Model, SceneConfig, Simulator, SurfaceEmbedding};
+use rlpkg_sim::{marker_grid_points, Model, SceneConfig, Simulator, SurfaceEmbedding};
 
 use super::outcome::Outcome;
 use super::schedule::{schedule, ScheduleOptions, Stop, RECORDING_RATE_HZ};
 use crate::error::input_error;
 use crate::render::{self, Bounds, Disc, Frame, GifWriter, View};
 
-/// Pitch of the real 6 x 7 marker grid (2 inches).
-const MARKER_PITCH_M: f32 = 0.0508;
 /// Picture sizes: PNG stills, and the smaller GIF frames that keep the animation a few MB.
 const PNG_SIZE: (u32, u32) = (1280, 720);
 const GIF_SIZE: (u32, u32) = (640, 360);
@@ -273,7 +271,7 @@ impl Observer for Recorder<'_> {
     fn start(&mut self, simulator: &Simulator) {
         // The reference's 42 loss points: the nominal 6 x 7 marker grid on the upper sheet;
         // embedding them works for any grid (on the reference grids they land exactly on vertices).
-        let grid_sites = simulator.embed(0, &nominal_marker_grid(self.placement_origin));
+        let grid_sites = simulator.embed(0, &marker_grid_points(self.placement_origin));
         let last_frame = self.frame_stops.len().saturating_sub(1);
         let (scene, close_up) = picture_bounds(self.recording, simulator, last_frame);
         self.pictures = Some(Pictures {
@@ -339,21 +337,6 @@ impl Observer for Recorder<'_> {
         self.outcome.simulated_s = simulator.time();
         self.outcome.dt_s = simulator.dt();
     }
-}
-
-/// The nominal 6 x 7 marker grid at `origin` (the package corner), row-major: the reference's 42
-/// loss points.
-fn nominal_marker_grid(origin: [f32; 3]) -> Vec<[f32; 3]> {
-    (0..42)
-        .map(|m| {
-            let (row, col) = (m / 7, m % 7);
-            [
-                origin[0] + col as f32 * MARKER_PITCH_M,
-                origin[1],
-                origin[2] + row as f32 * MARKER_PITCH_M,
-            ]
-        })
-        .collect()
 }
 
 /// What the views must show: everything the replay can reach (the recording, the package at rest,
