@@ -32,7 +32,6 @@
 //! [`crate::VecEnv::info_names`]). Terminated on success (at the place pose within
 //! `[transport.success]`, object settled) or failure (a cup detached, the package dropped, or the
 //! simulator froze the copy as unhealthy); truncated at `time_limit_s`.
-
 //!
 //! # Modules
 //! - `config`: the `[transport]` table and the scene it names;
@@ -43,7 +42,7 @@
 //! - `observe`: observation names, the spec and the observation rows;
 //! - `sensors`: the cell's sensors (vacuum leak model, wrist wrench, noise, delay lines);
 //! - `reward`: failure, success, reward terms and the info row of a step;
-//! - `snapshot`: the saved state for checkpoints;
+//! - `snapshot`: the saved state for checkpoints (serde; the flat layout is read too);
 //! - `evaluate`: episode outcomes and traces for evaluation;
 //! - `geometry`: vector and rotation helpers.
 
