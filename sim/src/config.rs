@@ -470,7 +470,9 @@ impl SceneConfig {
     pub fn preset(name: &str) -> Result<Self, SimError> {
         match name {
             "reference" => Self::from_toml_str(REFERENCE_TOML, "configs/scenes/study.toml"),
-            "physical" => Self::from_toml_str(PHYSICAL_TOML, "configs/scenes/physical-explicit.toml"),
+            "physical" => {
+                Self::from_toml_str(PHYSICAL_TOML, "configs/scenes/physical-explicit.toml")
+            }
             other => Err(SimError::UnknownPreset(other.to_string())),
         }
     }

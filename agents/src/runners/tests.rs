@@ -266,7 +266,10 @@ fn shipped_cartpole_config_reaches_475() {
     // `configs/train/cartpole.toml` as shipped (seed 1, 500k steps; ~20 s alone on 2 cores), then
     // 100 greedy episodes. Runs are bit-exact, so this is one fixed trajectory: any change to
     // the trainer's arithmetic re-rolls it (seeds 1-25 all reached 500.0 when this was written).
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/train/cartpole.toml");
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../configs/train/cartpole.toml"
+    );
     let text = std::fs::read_to_string(path).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let mut t = trainer(&text);

@@ -25,7 +25,7 @@ use rlpkg_sim::{Model, SceneConfig};
 use serde::Serialize;
 
 use crate::cmd::posterior::predictive::PredictiveArgs;
-use crate::error::input_error;
+use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 use crate::render::plot::{write_loss_plot, write_marker_error_plot};
 use crate::render::{self, Bounds, Disc, Frame, View};
@@ -260,7 +260,7 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
         perturb,
     };
     let json = serde_json::to_string_pretty(&summary)?;
-    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(input_error)?;
+    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(output_error)?;
     if args.json {
         println!("{json}");
     } else {

@@ -29,7 +29,7 @@ use clap::Args;
 use rlpkg_mocap::load_trajectory;
 use rlpkg_sim::SceneConfig;
 
-use crate::error::input_error;
+use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 use replay::Replay;
 use schedule::ScheduleOptions;
@@ -129,7 +129,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         &out.join("summary.json"),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )
-    .map_err(input_error)?;
+    .map_err(output_error)?;
     outcome.print(wall_s, &out);
     if let Some(event) = outcome.health {
         anyhow::bail!(

@@ -8,7 +8,7 @@ use rlpkg_mocap::Trajectory;
 use rlpkg_replay::loss::chamfer_distance;
 use rlpkg_sim::Model;
 
-use crate::error::input_error;
+use crate::error::output_error;
 use crate::files::write_atomic;
 
 /// The package Chamfer distance of the calibration (`rlpkg_replay::loss`, reference-model.md §8.3)
@@ -108,7 +108,7 @@ impl Outcome {
             ("object_sim.csv", &self.object_csv),
             ("metrics.csv", &self.metrics_csv),
         ] {
-            write_atomic(&out.join(name), text.as_bytes()).map_err(input_error)?;
+            write_atomic(&out.join(name), text.as_bytes()).map_err(output_error)?;
         }
         Ok(())
     }

@@ -235,8 +235,8 @@ fn real_film_is_stable_at_the_real_film_scenes_step() {
     // real packaging film, on its grid and on the coarse grid of the coarse real-film scene: held
     // still, the package settles with the disc inside (the health check reports a disc outside
     // the package).
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/scenes/physical-real-film.toml");
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../configs/scenes/physical-real-film.toml");
     for grid in [[16, 19], [11, 13]] {
         for film in [1.0e4, 2.0e4] {
             let mut c = SceneConfig::load(&path).unwrap();
