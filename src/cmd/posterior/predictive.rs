@@ -17,7 +17,7 @@ use rlpkg_sim::Model;
 use serde::Serialize;
 
 use super::calibration_scene;
-use crate::error::input_error;
+use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 
 /// The file of a posterior folder that records which calibration it came from.
@@ -247,7 +247,7 @@ pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
         per_draw,
     };
     let json = serde_json::to_string_pretty(&summary)?;
-    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(input_error)?;
+    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(output_error)?;
     if args.json {
         println!("{json}");
     } else {

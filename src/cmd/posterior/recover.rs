@@ -18,7 +18,7 @@ use rlpkg_replay::Target;
 use serde::Serialize;
 
 use super::{calibration_scene, PosteriorArgs};
-use crate::error::input_error;
+use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 
 #[derive(Serialize)]
@@ -148,7 +148,7 @@ pub fn run(
         wall_s,
         truths: &recoveries,
     })?;
-    write_atomic(&out.join("recovery.json"), json.as_bytes()).map_err(input_error)?;
+    write_atomic(&out.join("recovery.json"), json.as_bytes()).map_err(output_error)?;
     println!();
     print!("{}", recovery::recovery_table(&recoveries));
     println!();
