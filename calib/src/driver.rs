@@ -292,7 +292,8 @@ pub fn write_toml(path: &Path, value: &impl Serialize) -> Result<(), DriverError
 }
 
 /// The files a calibration writes into its output folder.
-pub const OUTPUT_FILES: [&str; 4] = [
+pub const OUTPUT_FILES: [&str; 5] = [
+    crate::fingerprint::OBJECTIVE_FILE,
     "evaluations.csv",
     "progress.csv",
     "best.toml",

@@ -5,6 +5,7 @@
 //! * [`bo`] — batched Bayesian optimisation (EI / confidence bound, Kriging believer), ask/tell;
 //! * [`evallog`] — the resumable CSV log of evaluations;
 //! * [`driver`] — the calibration loop (ask, evaluate, log, tell) and its output files;
+//! * [`fingerprint`] — the objective a calibration folder fits, checked when it is resumed;
 //! * [`posterior`] — an approximate posterior from a calibration's evaluations (BOLFI);
 //! * [`recovery`] — parameter recovery: calibrating synthetic recordings of known parameters back;
 //! * [`mcmc`] — the affine-invariant ensemble sampler the posterior draws with;
@@ -18,6 +19,7 @@ pub mod bo;
 pub mod config;
 pub mod driver;
 pub mod evallog;
+pub mod fingerprint;
 pub mod gp;
 pub mod mcmc;
 pub mod objective;

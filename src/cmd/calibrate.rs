@@ -2,7 +2,9 @@
 //! Gaussian-process Bayesian optimisation (crate `rlpkg-calib`).
 //!
 //! Every batch of candidates is simulated on every training trajectory in one batched rollout.
-//! Rerunning with the same output folder resumes from its `evaluations.csv`; `--fresh` starts over.
+//! Rerunning with the same output folder resumes from its `evaluations.csv` when it fits the same
+//! objective (recorded in `objective.toml`: data, time window, loss, bounds, seed, scene); `--fresh`
+//! starts over.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -13,6 +15,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{self, CalibratedParams, Plan};
+use rlpkg_calib::fingerprint::{self, ObjectiveRecord};
 use rlpkg_calib::objective::{load_scene, Observer, SimObjective};
 use rlpkg_mocap::{Dataset, Split};
 use rlpkg_sim::SceneConfig;
@@ -117,6 +120,28 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     }));
 
     let out_dir = &config.out_dir;
+    let record = ObjectiveRecord {
+        data: &config.data,
+        trajectories: &ids,
+        max_seconds: config.sim.max_seconds,
+        seed: config.optimiser.seed,
+        initial_points: config.optimiser.initial_points,
+        batch_size: config.optimiser.batch_size,
+        loss: config.loss,
+        param: &config.params,
+        scene: &scene,
+    }
+    .to_text()?;
+    if !args.fresh {
+        let recorded = fingerprint::check(out_dir, &record).map_err(input_error)?;
+        if !recorded && out_dir.join("evaluations.csv").exists() {
+            eprintln!(
+                "{} has no {}: resuming its evaluations without checking that they fit this objective",
+                out_dir.display(),
+                fingerprint::OBJECTIVE_FILE
+            );
+        }
+    }
     // What a calibration stopped at once (a second signal, a kill) left behind.
     let mut leftovers =
         driver::clean_leftovers(out_dir, &driver::OUTPUT_FILES).map_err(driver_error)?;
@@ -155,6 +180,13 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         config.optimiser.batch_size,
         out_dir.display()
     );
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
+    driver::write_atomically(
+        &out_dir.join(fingerprint::OBJECTIVE_FILE),
+        record.as_bytes(),
+    )
+    .map_err(driver_error)?;
     let started = Instant::now();
     // A signal stops the rollout of the current batch (whose rows are not logged) and the
     // calibration; the log and the other files stay whole, and the next run resumes.
@@ -322,7 +354,7 @@ fn print_summary(
     );
     println!("wall time {wall_s:.1} s");
     println!(
-        "wrote {}/{{evaluations.csv, progress.csv, best.toml}} and {}",
+        "wrote {}/{{objective.toml, evaluations.csv, progress.csv, best.toml}} and {}",
         out_dir.display(),
         calibrated.display()
     );
