@@ -59,16 +59,23 @@ pub fn export_error(err: ExportError, given: Option<&Path>) -> anyhow::Error {
 /// The process exit code for an error returned by a command: 130 when a signal stopped it, 2 for
 /// bad input, 1 otherwise.
 pub fn exit_code(err: &anyhow::Error) -> i32 {
-    if err
-        .chain()
-        .any(|cause| cause.is::<crate::interrupt::Interrupted>())
-    {
+    if holds::<crate::interrupt::Interrupted>(err) {
         crate::interrupt::EXIT_CODE
-    } else if err.chain().any(|cause| cause.is::<InputError>()) {
+    } else if holds::<InputError>(err) {
         2
     } else {
         1
     }
+}
+
+/// Whether `err` holds an `E` anywhere: as a cause in its chain, or as the context anyhow wrapped
+/// around a cause (`err.context(E)`: the chain then shows a wrapper type that is not `E`, which only
+/// anyhow's downcast sees through).
+fn holds<E>(err: &anyhow::Error) -> bool
+where
+    E: std::error::Error + Send + Sync + 'static,
+{
+    err.downcast_ref::<E>().is_some() || err.chain().any(|cause| cause.is::<E>())
 }
 
 /// An error while writing outputs: the user's (exit 2) when it comes from the file system (a
@@ -132,5 +139,18 @@ mod tests {
         );
         assert_eq!(exit_code(&err), 1);
         assert_eq!(exit_code(&input_error("bad").context("while reading")), 2);
+    }
+
+    #[test]
+    fn an_interruption_given_as_context_exits_130() {
+        let stopped = anyhow::anyhow!("the rollout was stopped").context("objective");
+        let err = stopped.context(crate::interrupt::Interrupted);
+        assert_eq!(exit_code(&err), crate::interrupt::EXIT_CODE);
+        let wrapped = err.context("calibrating");
+        assert_eq!(exit_code(&wrapped), crate::interrupt::EXIT_CODE);
+        assert_eq!(
+            exit_code(&anyhow::anyhow!("x").context(InputError("y".into()))),
+            2
+        );
     }
 }

@@ -169,6 +169,10 @@ impl FrameClock {
     }
 }
 
+/// Substeps between two looks at [`Observer::stop`] within a long stretch of simulation: a
+/// small fraction of a second of work even for large batches on fine grids.
+const STOP_CHECK_SUBSTEPS: u64 = 256;
+
 /// When a rollout stops: the clock of the compared frames and extra stops between them.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Schedule {
@@ -265,7 +269,14 @@ pub fn rollout_scheduled(
     let mut next_extra_stop = 0;
     observer.start(&sim);
     for &substep in &checkpoints {
-        sim.step(substep - sim.substep());
+        // In chunks, so that a stop request is seen soon even when a frame (or the rest period)
+        // spans millions of substeps; stepping in pieces gives the same state as in one go.
+        while sim.substep() < substep {
+            sim.step((substep - sim.substep()).min(STOP_CHECK_SUBSTEPS));
+            if sim.substep() < substep && observer.stop() {
+                return Err(ReplayError::Stopped);
+            }
+        }
         if extra_stops.get(next_extra_stop) == Some(&substep) {
             next_extra_stop += 1;
             if (0..sim.num_envs()).any(|env| !sim.is_frozen(env)) {
