@@ -132,8 +132,9 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         scene: &scene,
     }
     .to_text()?;
+    let mut recorded = false;
     if !args.fresh {
-        let recorded = fingerprint::check(out_dir, &record).map_err(input_error)?;
+        recorded = fingerprint::check(out_dir, &record).map_err(input_error)?;
         if !recorded && out_dir.join("evaluations.csv").exists() {
             eprintln!(
                 "{} has no {}: resuming its evaluations without checking that they fit this objective",
@@ -180,13 +181,15 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         config.optimiser.batch_size,
         out_dir.display()
     );
-    std::fs::create_dir_all(out_dir)
-        .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
-    driver::write_atomically(
-        &out_dir.join(fingerprint::OBJECTIVE_FILE),
-        record.as_bytes(),
-    )
-    .map_err(driver_error)?;
+    if !recorded {
+        std::fs::create_dir_all(out_dir)
+            .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
+        driver::write_atomically(
+            &out_dir.join(fingerprint::OBJECTIVE_FILE),
+            record.as_bytes(),
+        )
+        .map_err(driver_error)?;
+    }
     let started = Instant::now();
     // A signal stops the rollout of the current batch (whose rows are not logged) and the
     // calibration; the log and the other files stay whole, and the next run resumes.
