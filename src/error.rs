@@ -38,14 +38,17 @@ pub fn agent_error(err: AgentError) -> anyhow::Error {
 
 /// An error of the ONNX exporter or runtime; `given` is the ONNX file the user gave to run
 /// (`rlpkg eval --policy`), `None` for a file the command wrote. The user's (exit 2): a file that
-/// cannot be read or written, is not an ONNX model or lacks the metadata `rlpkg export` writes; a
-/// given file that tract cannot run, or that does not fit the environment its metadata names (the
+/// cannot be read or written, is not an ONNX model, holds a weight that is not finite or lacks the
+/// metadata `rlpkg export` writes; a given file that tract cannot run, or that does not fit the environment its metadata names (the
 /// message then names the file). A fault otherwise (an inconsistent graph, a written file that
 /// tract cannot run or that does not reproduce the policy).
 pub fn export_error(err: ExportError, given: Option<&Path>) -> anyhow::Error {
     match (&err, given) {
         (
-            ExportError::Io { .. } | ExportError::NotOnnx { .. } | ExportError::Metadata { .. },
+            ExportError::Io { .. }
+            | ExportError::NotOnnx { .. }
+            | ExportError::Metadata { .. }
+            | ExportError::NonFinite { .. },
             _,
         )
         | (ExportError::Runtime { .. }, Some(_)) => input_error(err),

@@ -1,5 +1,6 @@
 //! `rlpkg export`: writes a run's policy as an ONNX graph (normaliser and action transform
-//! included), then loads the written file in tract and checks it against the run's policy.
+//! included), after loading the encoding in tract and checking it against the run's policy: a
+//! policy that fails the check leaves no file.
 //!
 //! The policy is read from the run's latest checkpoint with the spec of its task; the task's
 //! environment is built only to compare the two on observations the policy visits.
@@ -13,7 +14,8 @@ use rlpkg_agents::export::runtime::{
     compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes,
     Latency,
 };
-use rlpkg_agents::export::{write_onnx, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
+use rlpkg_agents::export::onnx::write_atomically;
+use rlpkg_agents::export::{to_onnx_bytes, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
 use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
 use rlpkg_vec_env::VecEnv;
 use serde::Serialize;
@@ -150,7 +152,7 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
         check_data: args.check_data,
         latency_runs: args.latency.map(|runs| runs as usize),
     };
-    let mut summary = export_policy(&graph, &out, &options)?;
+    let checked = check_export(&graph, &out, &options)?;
     // The environment the run trained on: 100 episodes of a classic-control task, 8 of a
     // simulated one (each copy is a simulator lane).
     let episodes = match training.task {
@@ -161,13 +163,16 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
         .task
         .build(episodes)
         .map_err(|e| input_error(format!("{}: {e}", run.display())))?;
-    summary.burn = Some(compare_with_burn(
+    let burn = compare_with_burn(
         &burn,
         &graph,
+        checked.policy(),
         &out,
         options.verify_rows,
         env.as_mut(),
-    )?);
+    )?;
+    let mut summary = checked.write(&out, &options)?;
+    summary.burn = Some(burn);
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
@@ -189,24 +194,24 @@ pub struct BurnComparison {
     pub visited_max_abs_diff: f32,
 }
 
-/// Compares the actions of the burn policy and of tract on the file at `out`, on `rows` random
+/// Compares the actions of the burn policy and of tract on the encoding `onnx` (for `out`), on `rows` random
 /// observations and up to `rows` observations the burn policy visits (one episode per copy of
 /// `env`, seed 0); an error when either difference exceeds [`TOLERANCE`].
 fn compare_with_burn(
     burn: &TrainedPolicy,
     graph: &PolicyGraph,
+    onnx: &OnnxPolicy,
     out: &Path,
     rows: usize,
     env: &mut dyn VecEnv,
 ) -> anyhow::Result<BurnComparison> {
-    let onnx = OnnxPolicy::load(out).map_err(|e| export_error(e, None))?;
     let action_dim = graph.action_dim();
     let diff = |obs: &[f32], n: usize| -> anyhow::Result<f32> {
         let (diff, row) = max_abs_diff(&burn.act(obs, n), &onnx.act(obs, n)?, action_dim);
         if diff.is_nan() || diff > TOLERANCE {
             anyhow::bail!(
                 "{}: actions differ from the trainer's burn policy by {diff:e} (row {row}, \
-                 tolerance {TOLERANCE:e})",
+                 tolerance {TOLERANCE:e}); nothing written",
                 out.display()
             );
         }
@@ -229,47 +234,87 @@ fn compare_with_burn(
     })
 }
 
-/// Writes `graph` to `out` atomically, reloads the written file in tract and checks it against
-/// [`PolicyGraph::act`] on `verify_rows` random observations (error if the difference exceeds
-/// [`TOLERANCE`]); optionally writes check data and measures latency.
+/// Encodes `graph`, checks the encoding in tract (see [`check_export`]) and only then writes it
+/// to `out` atomically, with the optional check data and latency.
 pub fn export_policy(
     graph: &PolicyGraph,
     out: &Path,
     options: &ExportOptions,
 ) -> anyhow::Result<ExportSummary> {
+    check_export(graph, out, options)?.write(out, options)
+}
+
+/// An ONNX encoding of a policy that tract loaded and that reproduces the policy, not yet written.
+pub struct CheckedExport<'a> {
+    graph: &'a PolicyGraph,
+    bytes: Vec<u8>,
+    policy: OnnxPolicy,
+    obs: Vec<f32>,
+    max_abs_diff: f32,
+}
+
+/// Encodes `graph` for `out` and checks the encoding in tract against [`PolicyGraph::act`] on
+/// `verify_rows` random observations (error if the difference exceeds [`TOLERANCE`]). Nothing is
+/// written: a policy that fails its check leaves no file.
+pub fn check_export<'a>(
+    graph: &'a PolicyGraph,
+    out: &Path,
+    options: &ExportOptions,
+) -> anyhow::Result<CheckedExport<'a>> {
     check_out_path(out)?;
-    let bytes = write_onnx(graph, out).map_err(|e| export_error(e, None))?;
-    let policy = OnnxPolicy::load(out).map_err(|e| export_error(e, None))?;
+    let bytes = to_onnx_bytes(graph).map_err(|e| export_error(e, None))?;
+    let policy = OnnxPolicy::from_bytes(&bytes, out).map_err(|e| export_error(e, None))?;
     let rows = options.verify_rows;
     let obs = random_observations(graph, rows, 0);
     let agreement = compare_with_reference(graph, &policy, &obs, rows)?;
     agreement.check(TOLERANCE).with_context(|| {
         format!(
-            "{}: the written file does not reproduce the policy",
+            "{}: the encoded policy does not reproduce the policy (nothing written)",
             out.display()
         )
     })?;
-    let check_data = if options.check_data {
-        let path = check_path(out);
-        CheckData::from_reference(graph, &obs, rows, TOLERANCE).write(&path)?;
-        Some(path)
-    } else {
-        None
-    };
-    let latency_us = match options.latency_runs {
-        Some(runs) => Some(measure_latency(&policy, &obs, runs)?.into()),
-        None => None,
-    };
-    Ok(ExportSummary {
-        model: out.to_path_buf(),
+    Ok(CheckedExport {
+        graph,
         bytes,
-        env_id: graph.meta.env_id.clone(),
-        verified_rows: rows,
+        policy,
+        obs,
         max_abs_diff: agreement.max_abs_diff(),
-        check_data,
-        latency_us,
-        burn: None,
     })
+}
+
+impl CheckedExport<'_> {
+    /// The encoding, loaded in tract.
+    pub fn policy(&self) -> &OnnxPolicy {
+        &self.policy
+    }
+
+    /// Writes the checked encoding to `out` atomically; optionally writes check data and
+    /// measures latency.
+    pub fn write(self, out: &Path, options: &ExportOptions) -> anyhow::Result<ExportSummary> {
+        write_atomically(out, &self.bytes).map_err(|e| export_error(e, None))?;
+        let rows = options.verify_rows;
+        let check_data = if options.check_data {
+            let path = check_path(out);
+            CheckData::from_reference(self.graph, &self.obs, rows, TOLERANCE).write(&path)?;
+            Some(path)
+        } else {
+            None
+        };
+        let latency_us = match options.latency_runs {
+            Some(runs) => Some(measure_latency(&self.policy, &self.obs, runs)?.into()),
+            None => None,
+        };
+        Ok(ExportSummary {
+            model: out.to_path_buf(),
+            bytes: self.bytes.len() as u64,
+            env_id: self.graph.meta.env_id.clone(),
+            verified_rows: rows,
+            max_abs_diff: self.max_abs_diff,
+            check_data,
+            latency_us,
+            burn: None,
+        })
+    }
 }
 
 /// The output folder must exist and the path must name a file.

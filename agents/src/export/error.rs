@@ -24,6 +24,18 @@ pub enum ExportError {
         /// What the decoder reported.
         reason: String,
     },
+    /// A weight (an initializer or a constant of the graph) is NaN or infinite.
+    #[error("{path}: value {index} of tensor `{tensor}` is {value}: expected finite weights")]
+    NonFinite {
+        /// The file involved.
+        path: PathBuf,
+        /// The initializer or constant.
+        tensor: String,
+        /// Index of the first non-finite value.
+        index: usize,
+        /// That value.
+        value: f32,
+    },
     /// A metadata entry written by `rlpkg export` is missing or malformed.
     #[error("{path}: metadata key `{key}`: expected {expected}")]
     Metadata {

@@ -63,6 +63,7 @@ impl OnnxPolicy {
             path: source.into(),
             reason: "expected one input of shape [batch, obs_dim] with a fixed obs_dim".into(),
         })?;
+        check_finite(graph, source)?;
         let output_names: Vec<String> = graph.output.iter().map(|o| o.name.clone()).collect();
         if !output_names.iter().any(|name| name == OUTPUT_ACTION) {
             return Err(ExportError::NotOnnx {
@@ -153,6 +154,41 @@ impl OnnxPolicy {
 }
 
 /// Width of the single `[batch, obs_dim]` input.
+/// Every f32 initializer and constant of `graph` must be finite: tract would run a NaN weight
+/// without a word and the policy would act on NaN.
+fn check_finite(graph: &tract_onnx::pb::GraphProto, source: &Path) -> Result<(), ExportError> {
+    const FLOAT: i32 = 1;
+    let constants = graph.node.iter().flat_map(|node| {
+        node.attribute
+            .iter()
+            .filter_map(move |a| a.t.as_ref().map(|t| (node.name.as_str(), t)))
+    });
+    let tensors = graph
+        .initializer
+        .iter()
+        .map(|t| (t.name.as_str(), t))
+        .chain(constants);
+    for (name, tensor) in tensors {
+        if tensor.data_type != FLOAT {
+            continue;
+        }
+        let raw = tensor
+            .raw_data
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+        let values = tensor.float_data.iter().copied().chain(raw);
+        if let Some((index, value)) = values.enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(ExportError::NonFinite {
+                path: source.into(),
+                tensor: if tensor.name.is_empty() { name } else { &tensor.name }.to_string(),
+                index,
+                value,
+            });
+        }
+    }
+    Ok(())
+}
+
 fn input_width(graph: &tract_onnx::pb::GraphProto) -> Option<usize> {
     use tract_onnx::pb::{tensor_shape_proto::dimension::Value, type_proto};
     let [input] = graph.input.as_slice() else {

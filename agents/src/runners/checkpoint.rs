@@ -12,7 +12,8 @@
 
 use std::path::{Path, PathBuf};
 
-use burn::module::Module;
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::tensor::Tensor;
 use rlpkg_vec_env::{EnvSpec, EnvState};
 use serde::{Deserialize, Serialize};
 
@@ -419,15 +420,104 @@ fn read_state(
             "differs from the configuration the checkpoint was trained with",
         ));
     }
+    if let Some(reason) = non_finite_state(&state) {
+        return Err(checkpoint_error(&state_path, reason));
+    }
     Ok((checkpoint, state_path, state))
+}
+
+/// What in `state` no run could have written: a learning rate that is not a finite number >= 0,
+/// normaliser statistics that are not finite (a variance < 0, a count <= 0), returns, rewards or
+/// observations that are not finite. Such a state would train or act on NaN without a word.
+fn non_finite_state(state: &TrainerState) -> Option<String> {
+    let learning_rate = f64::from_bits(state.learning_rate);
+    if !(learning_rate.is_finite() && learning_rate >= 0.0) {
+        return Some(format!(
+            "`learning_rate` = {learning_rate}: expected a finite rate >= 0"
+        ));
+    }
+    let stats = [
+        ("obs_stats", &state.obs_stats),
+        ("reward_stats", &state.reward_stats),
+        ("critic_obs_stats", &state.critic_obs_stats),
+    ];
+    for (key, saved) in stats {
+        let Some(saved) = saved else { continue };
+        let count = f64::from_bits(saved.count);
+        if let Some(i) = floats(&saved.mean).iter().position(|v| !v.is_finite()) {
+            return Some(format!("`{key}.mean[{i}]` is not finite: expected a finite mean"));
+        }
+        if let Some(i) = floats(&saved.var)
+            .iter()
+            .position(|v| !(v.is_finite() && *v >= 0.0))
+        {
+            return Some(format!(
+                "`{key}.var[{i}]` = {}: expected a finite variance >= 0",
+                f64::from_bits(saved.var[i])
+            ));
+        }
+        if !(count.is_finite() && count > 0.0) {
+            return Some(format!("`{key}.count` = {count}: expected a finite count > 0"));
+        }
+    }
+    let doubles = [
+        ("reward_returns", state.reward_returns.as_deref().unwrap_or(&[])),
+        ("running_returns", &state.running_returns[..]),
+    ];
+    for (key, values) in doubles {
+        if let Some(i) = floats(values).iter().position(|v| !v.is_finite()) {
+            return Some(format!("`{key}[{i}]` is not finite"));
+        }
+    }
+    let singles = [
+        ("obs", &state.obs),
+        ("final_obs", &state.final_obs),
+        ("rewards", &state.rewards),
+        ("recent_returns", &state.recent_returns),
+        ("critic_obs", &state.critic_obs),
+        ("final_critic_obs", &state.final_critic_obs),
+    ];
+    for (key, values) in singles {
+        if let Some(i) = floats32(values).iter().position(|v| !v.is_finite()) {
+            return Some(format!("`{key}[{i}]` is not finite"));
+        }
+    }
+    None
+}
+
+/// Finds the first weight of a module that is not finite.
+struct NonFiniteWeight {
+    found: Option<String>,
+}
+
+impl ModuleVisitor for NonFiniteWeight {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if self.found.is_some() {
+            return;
+        }
+        let values = param.val().into_data().try_to_vec::<f32>().unwrap_or_default();
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            self.found = Some(format!(
+                "weight {i} of a {:?} parameter is {}: expected finite weights",
+                param.val().dims(),
+                values[i]
+            ));
+        }
+    }
 }
 
 /// `model` with the weights saved in `checkpoint`.
 fn load_model(model: ActorCritic, checkpoint: &Path) -> Result<ActorCritic, AgentError> {
     let model_path = checkpoint.join(MODEL);
-    model
+    let model = model
         .try_load_file(&model_path)
-        .map_err(|e| checkpoint_error(&model_path, e.to_string()))
+        .map_err(|e| checkpoint_error(&model_path, e.to_string()))?;
+    let mut check = NonFiniteWeight { found: None };
+    model.visit(&mut check);
+    match check.found {
+        Some(reason) => Err(checkpoint_error(&model_path, reason)),
+        None => Ok(model),
+    }
 }
 
 /// The counters of `state` must agree with `config` and the folder they are in: every update adds
