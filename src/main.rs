@@ -10,7 +10,8 @@ mod interrupt;
 mod render;
 mod tasks;
 
-use clap::{Parser, Subcommand};
+use clap::parser::ValueSource;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(name = "rlpkg", version, about, long_about = None)]
@@ -42,7 +43,14 @@ enum Command {
 }
 
 fn main() {
-    let cli = Cli::parse();
+    let matches = Cli::command().get_matches();
+    let mut cli = Cli::from_arg_matches(&matches).unwrap_or_else(|err| err.exit());
+    if let (Command::Eval(args), Some(("eval", given))) = (&mut cli.command, matches.subcommand()) {
+        args.given = cmd::eval::TRANSPORT_OPTIONS
+            .into_iter()
+            .filter(|id| given.value_source(id) == Some(ValueSource::CommandLine))
+            .collect();
+    }
     interrupt::install();
     let result = match cli.command {
         Command::Train(args) => cmd::train::run(args),

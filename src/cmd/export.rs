@@ -10,11 +10,11 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::Args;
 use rlpkg_agents::export::check::{check_path, CheckData};
+use rlpkg_agents::export::onnx::write_atomically;
 use rlpkg_agents::export::runtime::{
     compare_with_reference, max_abs_diff, measure_latency, random_observations, run_episodes,
     Latency,
 };
-use rlpkg_agents::export::onnx::write_atomically;
 use rlpkg_agents::export::{to_onnx_bytes, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
 use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
 use rlpkg_vec_env::VecEnv;

@@ -83,6 +83,17 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         eprintln!("removed the leftover temporary {}", path.display());
     }
     let stop_after = args.stop_after.map(|s| s as usize);
+    if let Some(stop) = stop_after {
+        let done = trainer.updates_done();
+        if stop <= done {
+            return Err(input_error(format!(
+                "--stop-after {stop}: {} is already at update {done} of {}; expected a total \
+                 number of updates > {done}",
+                run_dir.display(),
+                trainer.config().num_updates()
+            )));
+        }
+    }
     // A signal ends training after the current update, which is checkpointed: `--resume`
     // continues from it.
     let _cooperation = crate::interrupt::Cooperation::start();

@@ -73,11 +73,12 @@ impl OnnxPolicy {
                 ),
             });
         }
-        let metadata = proto
+        let metadata: BTreeMap<String, String> = proto
             .metadata_props
             .iter()
             .map(|p| (p.key.clone(), p.value.clone()))
             .collect();
+        check_action_head(&metadata, &output_names, source)?;
         let plan = tract_onnx::onnx()
             .model_for_proto_model(&proto)
             .and_then(|model| model.into_optimized())
@@ -154,6 +155,45 @@ impl OnnxPolicy {
 }
 
 /// Width of the single `[batch, obs_dim]` input.
+/// The action heads `rlpkg export` writes (metadata `action_head`), and whether each outputs logits.
+const ACTION_HEADS: [(&str, bool); 3] = [
+    ("categorical_argmax", true),
+    ("gaussian_mean_clip", false),
+    ("gaussian_mean_tanh_scale", false),
+];
+
+/// The metadata `action_head`, when present, must be one `rlpkg export` writes and agree with the
+/// outputs (logits for a categorical head only): an unknown head would be run as if it were known.
+fn check_action_head(
+    metadata: &BTreeMap<String, String>,
+    output_names: &[String],
+    source: &Path,
+) -> Result<(), ExportError> {
+    let Some(head) = metadata.get("action_head") else {
+        return Ok(());
+    };
+    let has_logits = output_names.iter().any(|name| name == OUTPUT_LOGITS);
+    match ACTION_HEADS.iter().find(|(name, _)| name == head) {
+        Some(&(_, logits)) if logits == has_logits => Ok(()),
+        Some(_) => Err(ExportError::Metadata {
+            path: source.into(),
+            key: "action_head".into(),
+            expected: format!(
+                "a head that fits the outputs {output_names:?} (`{head}` {} output `{OUTPUT_LOGITS}`)",
+                if has_logits { "has no" } else { "needs an" }
+            ),
+        }),
+        None => Err(ExportError::Metadata {
+            path: source.into(),
+            key: "action_head".into(),
+            expected: format!(
+                "one of {} (found `{head}`)",
+                ACTION_HEADS.map(|(name, _)| name).join(", ")
+            ),
+        }),
+    }
+}
+
 /// Every f32 initializer and constant of `graph` must be finite: tract would run a NaN weight
 /// without a word and the policy would act on NaN.
 fn check_finite(graph: &tract_onnx::pb::GraphProto, source: &Path) -> Result<(), ExportError> {
@@ -180,7 +220,12 @@ fn check_finite(graph: &tract_onnx::pb::GraphProto, source: &Path) -> Result<(),
         if let Some((index, value)) = values.enumerate().find(|(_, v)| !v.is_finite()) {
             return Err(ExportError::NonFinite {
                 path: source.into(),
-                tensor: if tensor.name.is_empty() { name } else { &tensor.name }.to_string(),
+                tensor: if tensor.name.is_empty() {
+                    name
+                } else {
+                    &tensor.name
+                }
+                .to_string(),
                 index,
                 value,
             });

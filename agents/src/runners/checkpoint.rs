@@ -445,7 +445,9 @@ fn non_finite_state(state: &TrainerState) -> Option<String> {
         let Some(saved) = saved else { continue };
         let count = f64::from_bits(saved.count);
         if let Some(i) = floats(&saved.mean).iter().position(|v| !v.is_finite()) {
-            return Some(format!("`{key}.mean[{i}]` is not finite: expected a finite mean"));
+            return Some(format!(
+                "`{key}.mean[{i}]` is not finite: expected a finite mean"
+            ));
         }
         if let Some(i) = floats(&saved.var)
             .iter()
@@ -457,11 +459,16 @@ fn non_finite_state(state: &TrainerState) -> Option<String> {
             ));
         }
         if !(count.is_finite() && count > 0.0) {
-            return Some(format!("`{key}.count` = {count}: expected a finite count > 0"));
+            return Some(format!(
+                "`{key}.count` = {count}: expected a finite count > 0"
+            ));
         }
     }
     let doubles = [
-        ("reward_returns", state.reward_returns.as_deref().unwrap_or(&[])),
+        (
+            "reward_returns",
+            state.reward_returns.as_deref().unwrap_or(&[]),
+        ),
         ("running_returns", &state.running_returns[..]),
     ];
     for (key, values) in doubles {
@@ -495,7 +502,11 @@ impl ModuleVisitor for NonFiniteWeight {
         if self.found.is_some() {
             return;
         }
-        let values = param.val().into_data().try_to_vec::<f32>().unwrap_or_default();
+        let values = param
+            .val()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap_or_default();
         if let Some(i) = values.iter().position(|v| !v.is_finite()) {
             self.found = Some(format!(
                 "weight {i} of a {:?} parameter is {}: expected finite weights",

@@ -201,6 +201,11 @@ impl Trainer {
         &self.config
     }
 
+    /// Updates done so far (those of a resumed checkpoint included).
+    pub fn updates_done(&self) -> usize {
+        self.update
+    }
+
     /// The environment's spec.
     pub fn spec(&self) -> &EnvSpec {
         &self.spec

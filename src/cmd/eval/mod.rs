@@ -83,7 +83,13 @@ pub struct EvalArgs {
     /// Print a JSON summary on standard output.
     #[arg(long)]
     pub json: bool,
+    /// Which of [`TRANSPORT_OPTIONS`] the command line gave (filled in by `main`).
+    #[arg(skip)]
+    pub given: Vec<&'static str>,
 }
+
+/// The options (argument ids) that only an evaluation of the transport task reads.
+pub const TRANSPORT_OPTIONS: [&str; 3] = ["scripted", "recorded", "trajectories"];
 
 /// Runs `rlpkg eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
@@ -94,6 +100,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
         let episodes = episode_count(args.episodes)?;
         if let Some(config) = &args.config {
             return onnx::eval_onnx_with_config(policy, config, episodes, &args);
+        }
+        // A transport policy is evaluated only with --config (above).
+        if let Some(id) = args.given.first() {
+            return Err(input_error(format!(
+                "--{id}: only an evaluation of {} reads it, with its training configuration \
+                 (--config <file.toml>)",
+                rlpkg_env::transport::ID
+            )));
         }
         let summary = onnx::eval_onnx_policy(policy, episodes, args.seed)?;
         return print_policy_summary(&summary, args.json, &|s| {
@@ -124,6 +138,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     .map_err(agent_error)?;
     if let Task::Transport { config, source } = &training.task {
         return transport::run(run, &policy, config, source, episodes, &args);
+    }
+    if let Some(id) = args.given.first() {
+        return Err(input_error(format!(
+            "--{id}: only an evaluation of {} reads it; {} is a {} run",
+            rlpkg_env::transport::ID,
+            run.display(),
+            training.spec.id
+        )));
     }
     policy
         .check_evaluation_memory(episodes)
