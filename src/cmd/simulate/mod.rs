@@ -94,6 +94,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("runs/simulate-{}", recording.id)));
+    refuse_earlier_output(&out)?;
     let options = ScheduleOptions {
         frames_every: args.frames_every,
         png_every: args.png_every,
@@ -150,6 +151,43 @@ const OUTPUT_FILES: [&str; 5] = [
     "summary.json",
     "replay.gif",
 ];
+
+/// A replay never writes into a folder that holds an earlier replay's files: the files the new one
+/// does not rewrite (stills at other instants, a GIF under `--no-gif`) would pass for its own.
+fn refuse_earlier_output(out: &Path) -> anyhow::Result<()> {
+    let mut found: Vec<String> = OUTPUT_FILES
+        .iter()
+        .filter(|file| out.join(file).exists())
+        .map(|file| file.to_string())
+        .collect();
+    if let Ok(entries) = std::fs::read_dir(out.join("frames")) {
+        let mut stills: Vec<String> = entries
+            .flatten()
+            .map(|entry| entry.file_name().to_string_lossy().into_owned())
+            .filter(|name| !name.starts_with('.'))
+            .map(|name| format!("frames/{name}"))
+            .collect();
+        stills.sort();
+        found.extend(stills);
+    }
+    if found.is_empty() {
+        return Ok(());
+    }
+    const NAMED: usize = 4;
+    let more = found.len().saturating_sub(NAMED);
+    found.truncate(NAMED);
+    Err(input_error(format!(
+        "--out {}: holds an earlier replay's files ({}{}); expected a new or empty folder: \
+         remove them or choose another --out",
+        out.display(),
+        found.join(", "),
+        if more > 0 {
+            format!(" and {more} more")
+        } else {
+            String::new()
+        }
+    )))
+}
 
 /// Creates `out/frames` and removes temporary files an interrupted earlier run left behind.
 fn prepare_output(out: &Path) -> anyhow::Result<()> {
