@@ -181,6 +181,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         config.optimiser.batch_size,
         out_dir.display()
     );
+    let created_out_dir = !out_dir.exists();
     if !recorded {
         std::fs::create_dir_all(out_dir)
             .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
@@ -214,8 +215,16 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             report.best_loss,
             report.evaluations
         ));
-    })
-    .map_err(driver_error)?;
+    });
+    let best = match best {
+        Ok(best) => best,
+        Err(err) => {
+            if !recorded {
+                remove_empty_start(out_dir, created_out_dir);
+            }
+            return Err(driver_error(err));
+        }
+    };
     bar.finish_and_clear();
     let wall = started.elapsed().as_secs_f64();
 
@@ -240,6 +249,22 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         args.write_params.as_deref(),
     );
     Ok(())
+}
+
+/// Removes what a calibration that stopped before logging its first batch wrote (the objective,
+/// the log's header, the folder when it made it): a start that failed or was interrupted leaves
+/// the output as it was. Best effort: what cannot be removed is a fresh start's, harmless.
+fn remove_empty_start(out_dir: &Path, created_out_dir: bool) {
+    let log = out_dir.join("evaluations.csv");
+    let logged = std::fs::read_to_string(&log).map_or(true, |text| text.lines().count() > 1);
+    if logged {
+        return;
+    }
+    let _ = std::fs::remove_file(&log);
+    let _ = std::fs::remove_file(out_dir.join(fingerprint::OBJECTIVE_FILE));
+    if created_out_dir {
+        let _ = std::fs::remove_dir(out_dir);
+    }
 }
 
 /// The evaluation log and the output files are the user's (exit 2: malformed log, folder that is

@@ -175,12 +175,6 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
             out.display()
         )));
     }
-    std::fs::create_dir_all(&out).map_err(|err| {
-        input_error(format!(
-            "{}: cannot create the output folder: {err}",
-            out.display()
-        ))
-    })?;
 
     let targets = selected
         .iter()
@@ -227,6 +221,13 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
             diverged_at_s: o.diverged.map(|e| e.time),
         })
         .collect();
+    // Made only now: a start that fails or is interrupted leaves no folder behind.
+    std::fs::create_dir_all(&out).map_err(|err| {
+        input_error(format!(
+            "{}: cannot create the output folder: {err}",
+            out.display()
+        ))
+    })?;
     observer
         .write_pictures(&out, &model, &targets, outcomes)
         .map_err(crate::error::output_error)?;

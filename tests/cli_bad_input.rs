@@ -1,0 +1,623 @@
+//! Bad input that could otherwise end with a wrong result and no word, through the binary, one
+//! table: a calibration resumed with another objective, non-finite checkpoints and ONNX files,
+//! options that would do nothing, signals during long steps, data that cannot be right. Each row
+//! gives the arguments, the exit code (2 for bad input, 130 for a signal), words the message must
+//! hold, and the case's folder must be left exactly as it was.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+const TINY_CARTPOLE: &str = r#"
+[run]
+env = "CartPole-v1"
+num_envs = 4
+seed = 3
+total_steps = 1024
+checkpoint_every = 1
+
+[ppo]
+rollout_steps = 64
+epochs = 1
+minibatches = 2
+gamma = 0.99
+gae_lambda = 0.95
+clip_ratio = 0.2
+clip_value_loss = true
+value_coef = 0.5
+entropy_coef = 0.01
+max_grad_norm = 0.5
+learning_rate = 1e-3
+lr_schedule = "linear"
+desired_kl = 0.01
+normalize_advantages = true
+adam_epsilon = 1e-5
+
+[policy]
+actor_hidden = [16, 16]
+critic_hidden = [16, 16]
+activation = "tanh"
+init_log_std = 0.0
+action_transform = "clip"
+
+[normalization]
+observations = true
+rewards = true
+clip_obs = 10.0
+clip_reward = 10.0
+epsilon = 1e-8
+"#;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn dataset() -> String {
+    repo()
+        .join("data/deformable-sim-real")
+        .display()
+        .to_string()
+}
+
+fn rlpkg(args: &[String], dir: &Path) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_rlpkg"));
+    command.args(args).current_dir(dir);
+    command
+}
+
+fn args(list: &[&str]) -> Vec<String> {
+    list.iter().map(|s| s.to_string()).collect()
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).unwrap();
+        }
+    }
+}
+
+/// Every file and folder under `dir` with its bytes (folders: empty).
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut files = BTreeMap::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            files.insert(path.clone(), Vec::new());
+            files.extend(snapshot(&path));
+        } else {
+            files.insert(path.clone(), std::fs::read(&path).unwrap());
+        }
+    }
+    files
+}
+
+fn edit(path: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.contains(from), "{} lacks {from}", path.display());
+    std::fs::write(path, text.replace(from, to)).unwrap();
+}
+
+/// A CartPole run trained once (4 updates, exported) for every case that needs one.
+fn trained_run() -> &'static Path {
+    static RUN: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &RUN.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("tiny.toml"), TINY_CARTPOLE).unwrap();
+        let out = rlpkg(&args(&["train", "tiny.toml", "--quiet"]), dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+        let run = dir.path().join("runs/tiny");
+        (dir, run)
+    })
+    .1
+}
+
+/// Copies the trained run to `dir/run`.
+fn run_copy(dir: &Path) -> PathBuf {
+    let run = dir.join("run");
+    copy_dir(trained_run(), &run);
+    run
+}
+
+/// The state file of the run's latest checkpoint, as JSON.
+fn state_path(run: &Path) -> PathBuf {
+    let latest = std::fs::read_to_string(run.join("checkpoints/latest")).unwrap();
+    run.join("checkpoints")
+        .join(latest.trim())
+        .join("state.json")
+}
+
+/// Sets `key` of the run's latest state (a float stored as its bits) to `value`.
+fn set_state_float(run: &Path, key: &str, index: Option<usize>, value: f64) {
+    let path = state_path(run);
+    let mut state: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let mut slot = &mut state;
+    for part in key.split('.') {
+        slot = &mut slot[part];
+    }
+    if let Some(i) = index {
+        slot = &mut slot[i];
+    }
+    assert!(slot.is_u64(), "{key}");
+    *slot = serde_json::Value::from(value.to_bits());
+    std::fs::write(&path, serde_json::to_vec(&state).unwrap()).unwrap();
+}
+
+/// Replaces the only occurrence of the f32 `from` in `path` with `to`.
+fn patch_f32(path: &Path, from: f32, to: f32) {
+    let mut bytes = std::fs::read(path).unwrap();
+    let pattern = from.to_le_bytes();
+    let at: Vec<usize> = (0..bytes.len() - 3)
+        .filter(|&i| bytes[i..i + 4] == pattern)
+        .collect();
+    assert_eq!(
+        at.len(),
+        1,
+        "{} holds {from} {} times",
+        path.display(),
+        at.len()
+    );
+    bytes[at[0]..at[0] + 4].copy_from_slice(&to.to_le_bytes());
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// The study's scene on the coarsest grid (6 x 7) with a 0.2 s rest period, as `dir/quick.toml`.
+fn quick_scene(dir: &Path) {
+    let study = std::fs::read_to_string(repo().join("configs/scenes/study.toml")).unwrap();
+    let quick = study
+        .replace("rest_time_s = 2.0", "rest_time_s = 0.2")
+        .replace("grid = [21, 25]", "grid = [6, 7]")
+        .replace("[health]", "[health]\nobject_outside = false");
+    assert!(quick.contains("grid = [6, 7]") && quick.contains("rest_time_s = 0.2"));
+    std::fs::write(dir.join("quick.toml"), quick).unwrap();
+}
+
+/// A calibration config on the first 0.05 s of HHHHH in `quick.toml`, into `out`.
+fn calibration_config(dir: &Path) {
+    std::fs::write(
+        dir.join("calibrate.toml"),
+        format!(
+            "data = \"{}\"\ntrajectories = [\"HHHHH\"]\nout_dir = \"out\"\n\n\
+             [sim]\npreset = \"quick.toml\"\nbetween = 0\nmax_seconds = 0.05\n\n\
+             [optimiser]\niterations = 1\nbatch_size = 2\ninitial_points = 1\nseed = 5\n\n\
+             [[param]]\nname = \"k_tri_e\"\nlower = 1.0e4\nupper = 1.0e6\nlog = true\n",
+            dataset()
+        ),
+    )
+    .unwrap();
+}
+
+/// A folder with `quick.toml`, `calibrate.toml` and the finished calibration `out/`, made once.
+fn calibrated() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        quick_scene(dir.path());
+        calibration_config(dir.path());
+        let out = rlpkg(&args(&["calibrate", "calibrate.toml"]), dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+        dir
+    })
+    .path()
+}
+
+/// Copies the finished calibration into `dir`; the rerun asks for one more batch.
+fn resumed_calibration(dir: &Path, extra: &[&str]) -> Vec<String> {
+    copy_dir(calibrated(), dir);
+    let mut list = args(&["calibrate", "calibrate.toml", "--iterations", "2"]);
+    list.extend(args(extra));
+    list
+}
+
+/// `quick.toml` with a substep rate of 1e8 Hz (in range): one frame is over 400 000 substeps.
+fn slow_scene(dir: &Path) {
+    quick_scene(dir);
+    edit(
+        &dir.join("quick.toml"),
+        "substep_rate_hz = 30720.0",
+        "substep_rate_hz = 1.0e8",
+    );
+}
+
+/// One row of the table.
+struct Case {
+    name: &'static str,
+    /// Prepares the case's folder (the working directory) and returns the arguments.
+    setup: fn(&Path) -> Vec<String>,
+    /// Expected exit code.
+    code: i32,
+    /// Words the message must hold.
+    words: &'static [&'static str],
+    /// Send SIGINT (`"INT"`) or SIGTERM (`"TERM"`) this long after the start.
+    signal: Option<(&'static str, Duration)>,
+}
+
+fn cases() -> Vec<Case> {
+    vec![
+        // 2. A calibration resumes only the objective its folder fits.
+        Case {
+            name: "calibration resumed with another time window",
+            setup: |dir| resumed_calibration(dir, &["--max-seconds", "0.06"]),
+            code: 2,
+            words: &[
+                "out/objective.toml",
+                "line",
+                "max_seconds = 0.05",
+                "max_seconds = 0.06",
+                "--fresh",
+            ],
+            signal: None,
+        },
+        Case {
+            name: "calibration resumed with other trajectories",
+            setup: |dir| resumed_calibration(dir, &["--trajectories", "HHHHM"]),
+            code: 2,
+            words: &[
+                "out/objective.toml",
+                "trajectories = [\"HHHHH\"]",
+                "trajectories = [\"HHHHM\"]",
+            ],
+            signal: None,
+        },
+        Case {
+            name: "calibration resumed with other loss weights",
+            setup: |dir| {
+                let list = resumed_calibration(dir, &[]);
+                let config = dir.join("calibrate.toml");
+                let text = std::fs::read_to_string(&config).unwrap();
+                std::fs::write(&config, text + "\n[loss]\nobject = 1.0\npackage = 0.7\n").unwrap();
+                list
+            },
+            code: 2,
+            words: &["out/objective.toml", "package = 0.2", "package = 0.7"],
+            signal: None,
+        },
+        Case {
+            name: "calibration resumed with another seed",
+            setup: |dir| {
+                let list = resumed_calibration(dir, &[]);
+                edit(&dir.join("calibrate.toml"), "seed = 5", "seed = 6");
+                list
+            },
+            code: 2,
+            words: &["out/objective.toml", "seed = 5", "seed = 6"],
+            signal: None,
+        },
+        Case {
+            name: "calibration resumed with another scene",
+            setup: |dir| {
+                let list = resumed_calibration(dir, &[]);
+                edit(&dir.join("quick.toml"), "mu_con = 0.5", "mu_con = 0.6");
+                list
+            },
+            code: 2,
+            words: &["out/objective.toml", "mu_con = 0.5", "mu_con = 0.6"],
+            signal: None,
+        },
+        Case {
+            name: "calibration resumed with other bounds",
+            setup: |dir| {
+                let list = resumed_calibration(dir, &[]);
+                edit(
+                    &dir.join("calibrate.toml"),
+                    "upper = 1.0e6",
+                    "upper = 2.0e6",
+                );
+                list
+            },
+            code: 2,
+            words: &[
+                "out/objective.toml",
+                "upper = 1000000.0",
+                "upper = 2000000.0",
+            ],
+            signal: None,
+        },
+        // 5. Signals during long steps.
+        Case {
+            name: "Ctrl-C during a calibration's long first substeps",
+            setup: |dir| {
+                slow_scene(dir);
+                calibration_config(dir);
+                args(&["calibrate", "calibrate.toml"])
+            },
+            code: 130,
+            words: &["interrupted"],
+            signal: Some(("INT", Duration::from_millis(1500))),
+        },
+        Case {
+            name: "SIGTERM during eval --params with long substeps",
+            setup: |dir| {
+                slow_scene(dir);
+                args(&[
+                    "eval",
+                    "--params",
+                    "quick.toml",
+                    "--data",
+                    &dataset(),
+                    "--out",
+                    "eval",
+                ])
+            },
+            code: 130,
+            words: &["interrupted"],
+            signal: Some(("TERM", Duration::from_millis(1500))),
+        },
+        // 3. Non-finite state is refused on load.
+        Case {
+            name: "NaN weight in a checkpoint (eval)",
+            setup: |dir| {
+                let run = run_copy(dir);
+                let model = state_path(&run).with_file_name("model.bpk");
+                let mut bytes = std::fs::read(&model).unwrap();
+                let end = bytes.len();
+                bytes[end - 4..].copy_from_slice(&f32::NAN.to_le_bytes());
+                std::fs::write(&model, bytes).unwrap();
+                args(&["eval", "run", "--episodes", "2"])
+            },
+            code: 2,
+            words: &["model.bpk", "NaN", "expected finite weights"],
+            signal: None,
+        },
+        Case {
+            name: "NaN weight in a checkpoint (export)",
+            setup: |dir| {
+                let run = run_copy(dir);
+                let model = state_path(&run).with_file_name("model.bpk");
+                let mut bytes = std::fs::read(&model).unwrap();
+                let end = bytes.len();
+                bytes[end - 4..].copy_from_slice(&f32::INFINITY.to_le_bytes());
+                std::fs::write(&model, bytes).unwrap();
+                args(&["export", "run"])
+            },
+            code: 2,
+            words: &["model.bpk", "inf", "expected finite weights"],
+            signal: None,
+        },
+        Case {
+            name: "negative learning rate in a run's state (train --resume)",
+            setup: |dir| {
+                let run = run_copy(dir);
+                set_state_float(&run, "learning_rate", None, -1e-3);
+                args(&["train", "--resume", "run", "--quiet"])
+            },
+            code: 2,
+            words: &[
+                "state.json",
+                "`learning_rate` = -0.001",
+                "expected a finite rate >= 0",
+            ],
+            signal: None,
+        },
+        Case {
+            name: "NaN learning rate in a run's state (eval)",
+            setup: |dir| {
+                let run = run_copy(dir);
+                set_state_float(&run, "learning_rate", None, f64::NAN);
+                args(&["eval", "run", "--episodes", "2"])
+            },
+            code: 2,
+            words: &["state.json", "`learning_rate` = NaN"],
+            signal: None,
+        },
+        Case {
+            name: "NaN in the observation statistics (export)",
+            setup: |dir| {
+                let run = run_copy(dir);
+                set_state_float(&run, "obs_stats.mean", Some(1), f64::NAN);
+                args(&["export", "run"])
+            },
+            code: 2,
+            words: &["state.json", "`obs_stats.mean[1]`", "not finite"],
+            signal: None,
+        },
+        Case {
+            name: "negative variance in the reward statistics (train --resume)",
+            setup: |dir| {
+                let run = run_copy(dir);
+                set_state_float(&run, "reward_stats.var", Some(0), -1.0);
+                args(&["train", "--resume", "run", "--quiet"])
+            },
+            code: 2,
+            words: &["state.json", "`reward_stats.var[0]` = -1", "variance >= 0"],
+            signal: None,
+        },
+        Case {
+            name: "infinite constant in an ONNX policy (eval --policy)",
+            setup: |dir| {
+                let run = run_copy(dir);
+                patch_f32(&run.join("policy.onnx"), 10.0, f32::INFINITY);
+                args(&["eval", "--policy", "run/policy.onnx", "--episodes", "2"])
+            },
+            code: 2,
+            words: &[
+                "run/policy.onnx",
+                "norm_clip_high",
+                "inf",
+                "expected finite weights",
+            ],
+            signal: None,
+        },
+        // 7. Options that would do nothing.
+        Case {
+            name: "--scripted on a CartPole run",
+            setup: |dir| {
+                run_copy(dir);
+                args(&["eval", "run", "--episodes", "2", "--scripted", "1.0"])
+            },
+            code: 2,
+            words: &["--scripted", "Transport-v0", "CartPole-v1"],
+            signal: None,
+        },
+        Case {
+            name: "--trajectories on an ONNX CartPole policy",
+            setup: |dir| {
+                run_copy(dir);
+                args(&[
+                    "eval",
+                    "--policy",
+                    "run/policy.onnx",
+                    "--trajectories",
+                    "test",
+                ])
+            },
+            code: 2,
+            words: &["--trajectories", "Transport-v0", "--config"],
+            signal: None,
+        },
+        Case {
+            name: "--stop-after below the run's update",
+            setup: |dir| {
+                run_copy(dir);
+                args(&["train", "--resume", "run", "--stop-after", "2"])
+            },
+            code: 2,
+            words: &["--stop-after 2", "already at update 4", "> 4"],
+            signal: None,
+        },
+        Case {
+            name: "simulate into a folder holding an earlier replay",
+            setup: |dir| {
+                std::fs::create_dir_all(dir.join("out/frames")).unwrap();
+                std::fs::write(dir.join("out/metrics.csv"), "frame,t\n").unwrap();
+                std::fs::write(dir.join("out/frames/000_t-2.000s.png"), "").unwrap();
+                let take = repo().join("data/deformable-sim-real/HHHHH");
+                args(&[
+                    "simulate",
+                    &take.display().to_string(),
+                    "--out",
+                    "out",
+                    "--seconds",
+                    "0.01",
+                ])
+            },
+            code: 2,
+            words: &[
+                "--out out",
+                "metrics.csv",
+                "frames/000_t-2.000s.png",
+                "another --out",
+            ],
+            signal: None,
+        },
+        Case {
+            name: "unknown ONNX action_head",
+            setup: |dir| {
+                let run = run_copy(dir);
+                let path = run.join("policy.onnx");
+                let mut bytes = std::fs::read(&path).unwrap();
+                let head = b"categorical_argmax";
+                let at = bytes.windows(head.len()).position(|w| w == head).unwrap();
+                bytes[at..at + head.len()].copy_from_slice(b"categorical_sample");
+                std::fs::write(&path, bytes).unwrap();
+                args(&["eval", "--policy", "run/policy.onnx", "--episodes", "2"])
+            },
+            code: 2,
+            words: &["action_head", "categorical_sample", "categorical_argmax"],
+            signal: None,
+        },
+    ]
+}
+
+/// Runs `args` in `dir`, sending `signal` after its delay; the exit code and standard error.
+fn run_case(
+    args: &[String],
+    dir: &Path,
+    signal: Option<(&str, Duration)>,
+) -> (Option<i32>, String) {
+    let mut child = rlpkg(args, dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    if let Some((name, after)) = signal {
+        std::thread::sleep(after);
+        let sent = Command::new("kill")
+            .args([format!("-{name}"), child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(sent.success());
+        // The command looks at the request within a chunk of substeps: a bound that only a hang
+        // exceeds, whatever the load of the machine.
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while child.try_wait().unwrap().is_none() {
+            if Instant::now() > deadline {
+                child.kill().unwrap();
+                panic!("rlpkg {args:?} did not stop within 30 s of SIG{name}");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    let out = child.wait_with_output().unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn bad_input_is_refused_with_its_name_and_leaves_the_folder_as_it_was() {
+    let mut failures = Vec::new();
+    // With RLPKG_BAD_INPUT_TABLE=<file>, every case as a markdown row.
+    let mut table = String::from("| case | command | exit code | message |\n|---|---|---|---|\n");
+    for case in cases() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = (case.setup)(dir.path());
+        let before = snapshot(dir.path());
+        let (code, stderr) = run_case(&args, dir.path(), case.signal);
+        let mut problems = Vec::new();
+        if code != Some(case.code) {
+            problems.push(format!("exit code {code:?}, expected {}", case.code));
+        }
+        for word in case.words {
+            if !stderr.contains(word) {
+                problems.push(format!("message lacks `{word}`"));
+            }
+        }
+        if stderr.contains("panicked") {
+            problems.push("panic".into());
+        }
+        if snapshot(dir.path()) != before {
+            problems.push("the folder changed".into());
+        }
+        let command = args
+            .iter()
+            .map(|a| a.replace(&repo().display().to_string(), "<repo>"))
+            .collect::<Vec<_>>()
+            .join(" ");
+        let message = stderr
+            .lines()
+            .filter(|line| line.starts_with("error:"))
+            .collect::<Vec<_>>()
+            .join(" ");
+        table += &format!(
+            "| {} | `rlpkg {command}` | {} | {} |\n",
+            case.name,
+            code.map_or("none".into(), |c| c.to_string()),
+            message.replace('|', "\\|")
+        );
+        if !problems.is_empty() {
+            failures.push(format!(
+                "{}: {}\n  rlpkg {args:?}\n  stderr: {stderr}",
+                case.name,
+                problems.join(", ")
+            ));
+        }
+    }
+    if let Some(path) = std::env::var_os("RLPKG_BAD_INPUT_TABLE") {
+        std::fs::write(path, table).unwrap();
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
