@@ -231,6 +231,68 @@ fn slow_scene(dir: &Path) {
     );
 }
 
+/// Copies the shipped recording HHHHH to `dir/rec/<name>` (no manifest beside it).
+fn recording(dir: &Path, name: &str) -> PathBuf {
+    let target = dir.join("rec").join(name);
+    copy_dir(&repo().join("data/deformable-sim-real/HHHHH"), &target);
+    target
+}
+
+/// `simulate` of the recording `rec/<name>` for 0.01 s into `out`.
+fn simulate(name: &str) -> Vec<String> {
+    args(&[
+        "simulate",
+        &format!("rec/{name}"),
+        "--seconds",
+        "0.01",
+        "--out",
+        "out",
+    ])
+}
+
+/// A dataset `dir/rec` holding HHHHH, with `manifest` as its manifest.
+fn dataset_with(dir: &Path, manifest: &str) -> Vec<String> {
+    quick_scene(dir);
+    recording(dir, "HHHHH");
+    std::fs::write(dir.join("rec/manifest.toml"), manifest).unwrap();
+    args(&[
+        "eval",
+        "--params",
+        "quick.toml",
+        "--data",
+        "rec",
+        "--split",
+        "test",
+        "--out",
+        "out",
+    ])
+}
+
+/// The shipped manifest's entry of HHHHH, in the test split.
+const HHHHH_ENTRY: &str = "[[trajectory]]\nid = \"HHHHH\"\nsplit = \"test\"\nframes = 1412\n\
+                           duration_s = 5.8792\nobject_total_mass_kg = 0.569592\n";
+
+/// The excerpt Motive take, decompressed to `dir/a30_m0.5_high.csv` (a take the shipped import
+/// config lists) with `from` replaced by `to`.
+fn motive_take(dir: &Path, from: &str, to: &str) -> Vec<String> {
+    let gz = repo().join("mocap/tests/fixtures/a30_m0.5_high_excerpt.csv.gz");
+    let out = Command::new("gzip").arg("-dc").arg(&gz).output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains(from), "the take lacks {from}");
+    std::fs::write(dir.join("a30_m0.5_high.csv"), text.replacen(from, to, 1)).unwrap();
+    let config = repo().join("configs/import/motive.toml");
+    args(&[
+        "data",
+        "import-motive",
+        "a30_m0.5_high.csv",
+        "--out",
+        "takes",
+        "--config",
+        &config.display().to_string(),
+    ])
+}
+
 /// One row of the table.
 struct Case {
     name: &'static str,
@@ -528,7 +590,212 @@ fn cases() -> Vec<Case> {
             words: &["action_head", "categorical_sample", "categorical_argmax"],
             signal: None,
         },
+        // 6. Data that cannot be right.
+        Case {
+            name: "recording with a coordinate of 1e300",
+            setup: |dir| {
+                let rec = recording(dir, "HHHHH");
+                edit(
+                    &rec.join("markers.csv"),
+                    "0,0.000000,0.185656,",
+                    "0,0.000000,1e300,",
+                );
+                simulate("HHHHH")
+            },
+            code: 2,
+            words: &["rec/HHHHH/markers.csv:2", "1e300", "plausible"],
+            signal: None,
+        },
+        Case {
+            name: "recording without a manifest whose markers stop early",
+            setup: |dir| {
+                let rec = recording(dir, "HHHHH");
+                let path = rec.join("markers.csv");
+                let text = std::fs::read_to_string(&path).unwrap();
+                let kept: Vec<&str> = text
+                    .lines()
+                    .filter(|line| !line.starts_with("1411,"))
+                    .collect();
+                std::fs::write(&path, kept.join("\n") + "\n").unwrap();
+                simulate("HHHHH")
+            },
+            code: 2,
+            words: &["rec/HHHHH/markers.csv", "frame 1411 of 1412", "no marker"],
+            signal: None,
+        },
+        Case {
+            name: "Motive header rate that contradicts the time column",
+            setup: |dir| {
+                motive_take(
+                    dir,
+                    "Export Frame Rate,250.000000",
+                    "Export Frame Rate,120.000000",
+                )
+            },
+            code: 2,
+            words: &[
+                "a30_m0.5_high.csv",
+                "line 1",
+                "Export Frame Rate",
+                "120 Hz",
+                "250",
+            ],
+            signal: None,
+        },
+        Case {
+            name: "manifest with duration_s = nan",
+            setup: |dir| dataset_with(dir, &HHHHH_ENTRY.replace("5.8792", "nan")),
+            code: 2,
+            words: &["rec/manifest.toml", "HHHHH", "`duration_s` = NaN"],
+            signal: None,
+        },
+        Case {
+            name: "manifest listing an id twice",
+            setup: |dir| dataset_with(dir, &format!("{HHHHH_ENTRY}\n{HHHHH_ENTRY}")),
+            code: 2,
+            words: &["rec/manifest.toml", "\"HHHHH\" is listed twice"],
+            signal: None,
+        },
+        Case {
+            name: "meta.toml id other than its folder",
+            setup: |dir| {
+                recording(dir, "HHHHM");
+                simulate("HHHHM")
+            },
+            code: 2,
+            words: &["rec/HHHHM/meta.toml", "id = \"HHHHH\"", "\"HHHHM\""],
+            signal: None,
+        },
+        Case {
+            name: "zero package mass in meta.toml",
+            setup: |dir| {
+                let rec = recording(dir, "HHHHH");
+                edit(
+                    &rec.join("meta.toml"),
+                    "package_mass_kg = 0.022",
+                    "package_mass_kg = 0.0",
+                );
+                simulate("HHHHH")
+            },
+            code: 2,
+            words: &["rec/HHHHH/meta.toml", "package_mass_kg", "positive"],
+            signal: None,
+        },
+        // 4. Checked before any rollout.
+        Case {
+            name: "calibration with both loss weights zero",
+            setup: |dir| {
+                quick_scene(dir);
+                calibration_config(dir);
+                let config = dir.join("calibrate.toml");
+                let text = std::fs::read_to_string(&config).unwrap();
+                std::fs::write(&config, text + "\n[loss]\nobject = 0.0\npackage = 0.0\n").unwrap();
+                args(&["calibrate", "calibrate.toml"])
+            },
+            code: 2,
+            words: &["calibrate.toml", "`loss`", "at least one weight > 0"],
+            signal: None,
+        },
+        Case {
+            name: "calibration bounds beyond the scene's range",
+            setup: |dir| {
+                quick_scene(dir);
+                calibration_config(dir);
+                let config = dir.join("calibrate.toml");
+                let text = std::fs::read_to_string(&config).unwrap();
+                let mu = "\n[[param]]\nname = \"mu_con\"\nlower = 0.0\nupper = 1000.0\n";
+                std::fs::write(&config, text + mu).unwrap();
+                args(&["calibrate", "calibrate.toml"])
+            },
+            code: 2,
+            words: &[
+                "calibrate.toml",
+                "`param[1].upper` = 1000",
+                "params.mu_con",
+                "[0, 100]",
+            ],
+            signal: None,
+        },
+        Case {
+            name: "--perturb beyond the scene's range",
+            setup: |dir| {
+                quick_scene(dir);
+                args(&[
+                    "eval",
+                    "--params",
+                    "quick.toml",
+                    "--data",
+                    &dataset(),
+                    "--perturb",
+                    "100000",
+                    "--out",
+                    "out",
+                ])
+            },
+            code: 2,
+            words: &["--perturb 100000", "params.mu_con", "[0, 100]"],
+            signal: None,
+        },
+        // 8. Messages.
+        Case {
+            name: "a take file that does not exist",
+            setup: |_| {
+                let config = repo().join("configs/import/motive.toml");
+                args(&[
+                    "data",
+                    "import-motive",
+                    "a30_m0.5_high.csv",
+                    "--out",
+                    "takes",
+                    "--config",
+                    &config.display().to_string(),
+                ])
+            },
+            code: 2,
+            words: &["a30_m0.5_high.csv", "not found"],
+            signal: None,
+        },
+        Case {
+            name: "bench sim --envs 0",
+            setup: |_| args(&["bench", "sim", "--envs", "0", "--seconds", "0"]),
+            code: 2,
+            words: &["--envs 0", "cannot read `0`", ">= 1"],
+            signal: None,
+        },
+        Case {
+            name: "an f32 value echoed as written",
+            setup: |dir| {
+                quick_scene(dir);
+                let path = dir.join("quick.toml");
+                let text = std::fs::read_to_string(&path).unwrap();
+                let line = text
+                    .lines()
+                    .find(|l| l.starts_with("soft_mu"))
+                    .unwrap()
+                    .to_string();
+                std::fs::write(&path, text.replace(&line, "soft_mu = -0.1")).unwrap();
+                simulate_shipped("quick.toml")
+            },
+            code: 2,
+            words: &["quick.toml", "`contact.soft_mu` = -0.1:"],
+            signal: None,
+        },
     ]
+}
+
+/// `simulate` of the shipped HHHHH for 0.01 s with `params` into `out`.
+fn simulate_shipped(params: &str) -> Vec<String> {
+    let take = repo().join("data/deformable-sim-real/HHHHH");
+    args(&[
+        "simulate",
+        &take.display().to_string(),
+        "--params",
+        params,
+        "--seconds",
+        "0.01",
+        "--out",
+        "out",
+    ])
 }
 
 /// Runs `args` in `dir`, sending `signal` after its delay; the exit code and standard error.

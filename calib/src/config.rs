@@ -209,6 +209,13 @@ impl CalibrateConfig {
                 return Err(range(key, w.to_string(), "a weight >= 0"));
             }
         }
+        if self.loss.object == 0.0 && self.loss.package == 0.0 {
+            return Err(range(
+                "loss",
+                "{ object = 0, package = 0 }".into(),
+                "at least one weight > 0 (every candidate would have loss 0)",
+            ));
+        }
         if let Some(ids) = &self.trajectories {
             if ids.is_empty() {
                 return Err(range(

@@ -25,6 +25,9 @@ const TIME_TOLERANCE_S: f64 = 1e-5;
 /// Largest difference (s) allowed between the manifest's `duration_s` (rounded when it was
 /// written, 4 decimals in the shipped data) and the last tool time.
 const DURATION_TOLERANCE_S: f64 = 1e-3;
+/// Largest magnitude a recorded value may have (metres, seconds, m/s, m/s², rad/s²): far beyond
+/// any capture volume or motion, so only a corrupted or mis-scaled value exceeds it.
+const PLAUSIBLE_MAGNITUDE: f64 = 1e6;
 
 /// What went wrong while reading or writing a dataset; every variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -218,14 +221,7 @@ impl Dataset {
     pub fn open(dir: &Path) -> Result<Dataset, DataError> {
         let path = dir.join("manifest.toml");
         let manifest = read_manifest(&path)?;
-        let mut seen = std::collections::HashSet::new();
         for entry in &manifest.trajectory {
-            if !seen.insert(entry.id.as_str()) {
-                return Err(invalid(
-                    &path,
-                    format!("trajectory id {:?} is listed twice", entry.id),
-                ));
-            }
             if !dir.join(&entry.id).is_dir() {
                 return Err(invalid(
                     &path,
@@ -272,17 +268,59 @@ impl Dataset {
     }
 }
 
-/// Parses a `manifest.toml`, naming the line of the first error.
+/// Parses a `manifest.toml`, naming the line of the first error, and checks its entries: ids
+/// listed once, a finite duration >= 0, a positive mass, at least one frame.
 fn read_manifest(path: &Path) -> Result<Manifest, DataError> {
     let text = fs::read_to_string(path).map_err(io_error(path))?;
-    toml::from_str(&text).map_err(|err| {
+    let manifest: Manifest = toml::from_str(&text).map_err(|err| {
         let (line, message) = rlpkg_toml_input::error_at(&text, &err);
         DataError::Malformed {
             path: path.to_path_buf(),
             line,
             message,
         }
-    })
+    })?;
+    let mut seen = std::collections::HashSet::new();
+    for entry in &manifest.trajectory {
+        let wrong = |key: &str, value: String, expected: &str| {
+            invalid(
+                path,
+                format!(
+                    "trajectory {:?}: `{key}` = {value}: expected {expected}",
+                    entry.id
+                ),
+            )
+        };
+        if !seen.insert(entry.id.as_str()) {
+            return Err(invalid(
+                path,
+                format!("trajectory id {:?} is listed twice", entry.id),
+            ));
+        }
+        if entry.frames == 0 {
+            return Err(wrong("frames", "0".into(), "at least 1"));
+        }
+        if !(entry.duration_s.is_finite() && entry.duration_s >= 0.0) {
+            return Err(wrong(
+                "duration_s",
+                entry.duration_s.to_string(),
+                "a finite time >= 0 s (the last frame's)",
+            ));
+        }
+        if !(entry.object_total_mass_kg.is_finite() && entry.object_total_mass_kg > 0.0) {
+            return Err(wrong(
+                "object_total_mass_kg",
+                entry.object_total_mass_kg.to_string(),
+                "a mass > 0 kg",
+            ));
+        }
+        if let Some(lb) = entry.mass_lb {
+            if !(lb.is_finite() && lb >= 0.0) {
+                return Err(wrong("mass_lb", lb.to_string(), "a weight >= 0 lb"));
+            }
+        }
+    }
+    Ok(manifest)
 }
 
 /// Writes `dir/manifest.toml` atomically.
@@ -459,6 +497,16 @@ pub(crate) fn read_rows(path: &Path, header: &[&str]) -> Result<Vec<(usize, Vec<
                     message: format!("column {column}: expected a finite number, found {cell:?}"),
                 });
             }
+            if *column != "frame" && value.abs() > PLAUSIBLE_MAGNITUDE {
+                return Err(DataError::Malformed {
+                    path: path.to_path_buf(),
+                    line,
+                    message: format!(
+                        "column {column}: {cell:?} is beyond any plausible size; expected a \
+                         magnitude <= {PLAUSIBLE_MAGNITUDE:e} (SI units)"
+                    ),
+                });
+            }
             values.push(value);
         }
         rows.push((line, values));
@@ -602,14 +650,44 @@ fn read_meta(path: &Path) -> Result<Meta, DataError> {
     let positive = [
         ("package_size_m[0]", meta.package_size_m[0]),
         ("package_size_m[1]", meta.package_size_m[1]),
+        ("package_mass_kg", meta.package_mass_kg),
         ("object_diameter_m", meta.object_diameter_m),
+        ("object_body_mass_kg", meta.object_body_mass_kg),
         ("object_total_mass_kg", meta.object_total_mass_kg),
+        ("total_mass_kg", meta.total_mass_kg),
     ];
     for (key, value) in positive {
-        if !(value.is_finite() && value > 0.0) {
+        if !(value.is_finite() && value > 0.0 && value <= PLAUSIBLE_MAGNITUDE) {
             return Err(invalid(
                 path,
                 format!("{key} must be a positive number, found {value}"),
+            ));
+        }
+    }
+    let positions = std::iter::once((
+        "initial_suction_cup_position_m",
+        0,
+        &meta.initial_suction_cup_position_m,
+    ))
+    .chain(
+        meta.initial_marker_positions_m
+            .iter()
+            .enumerate()
+            .map(|(i, p)| ("initial_marker_positions_m", i, p)),
+    );
+    for (key, index, position) in positions {
+        if position.iter().any(|v| !(v.abs() <= PLAUSIBLE_MAGNITUDE)) {
+            let at = if key == "initial_suction_cup_position_m" {
+                key.to_string()
+            } else {
+                format!("{key}[{index}]")
+            };
+            return Err(invalid(
+                path,
+                format!(
+                    "{at} = {position:?}: expected finite coordinates of magnitude <= \
+                     {PLAUSIBLE_MAGNITUDE:e} m"
+                ),
             ));
         }
     }
@@ -635,9 +713,30 @@ pub fn load_trajectory(dir: &Path) -> Result<Trajectory, DataError> {
         let entries = read_manifest(&manifest)?.trajectory;
         if let Some(entry) = entries.iter().find(|e| name == e.id.as_str()) {
             entry.check(dir, &trajectory, &manifest)?;
+            return Ok(trajectory);
         }
     }
+    check_markers_cover_frames(dir, &trajectory)?;
     Ok(trajectory)
+}
+
+/// A folder no manifest vouches for is checked from its own files: every frame of `tool.csv` must
+/// have markers in `markers.csv` (a file cut short leaves the last frames without any, and their
+/// errors would be NaN).
+fn check_markers_cover_frames(dir: &Path, trajectory: &Trajectory) -> Result<(), DataError> {
+    let markers = &trajectory.markers;
+    match (0..markers.len()).find(|&k| markers.frame(k).is_empty()) {
+        Some(k) => Err(invalid(
+            &dir.join("markers.csv"),
+            format!(
+                "frame {k} of {} (t = {} s) has no marker; expected markers in every frame \
+                 (file cut short?)",
+                markers.len(),
+                markers.t(k)
+            ),
+        )),
+        None => Ok(()),
+    }
 }
 
 /// Loads and validates one trajectory folder on its own (no manifest).
@@ -676,6 +775,18 @@ fn read_trajectory(dir: &Path) -> Result<Trajectory, DataError> {
         ));
     }
     let markers = read_markers(&dir.join("markers.csv"), &tool.t)?;
+    let folder = dir.file_name().and_then(|name| name.to_str());
+    if folder.is_some_and(|folder| folder != meta.id) {
+        return Err(invalid(
+            &dir.join("meta.toml"),
+            format!(
+                "id = {:?} but the folder is {:?}; expected the folder's name (renamed or copied \
+                 folder?)",
+                meta.id,
+                folder.unwrap_or_default()
+            ),
+        ));
+    }
     Ok(Trajectory {
         id: meta.id.clone(),
         meta,

@@ -410,6 +410,7 @@ pub fn parse_take(text: &str, path: &Path) -> Result<MotiveTake, MotiveError> {
             "expected at least one data row after the header rows".into(),
         ));
     }
+    check_export_rate(&header, &time, &err)?;
     if let Some(total) = header.total_exported_frames {
         if total != time.len() {
             return Err(err(
@@ -426,6 +427,32 @@ pub fn parse_take(text: &str, path: &Path) -> Result<MotiveTake, MotiveError> {
         rigid_bodies,
         markers,
     })
+}
+
+/// The `Time` column must step by one period of the header's `Export Frame Rate` (the median
+/// step, so that a few dropped frames do not count): a header that contradicts its rows would
+/// give every derived velocity and acceleration the wrong scale.
+fn check_export_rate(header: &TakeHeader, time: &[f64], err: &ErrFn) -> Result<(), MotiveError> {
+    let mut steps: Vec<f64> = time.windows(2).map(|pair| pair[1] - pair[0]).collect();
+    if steps.is_empty() {
+        return Ok(());
+    }
+    steps.sort_by(f64::total_cmp);
+    let step = steps[steps.len() / 2];
+    let period = 1.0 / header.export_frame_rate_hz;
+    if (step - period).abs() > 0.01 * period {
+        return Err(err(
+            1,
+            None,
+            format!(
+                "'Export Frame Rate' says {} Hz but the Time column steps by {step:.6} s ({:.1} Hz); \
+                 expected the two to agree within 1 %",
+                header.export_frame_rate_hz,
+                1.0 / step
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Column slots with the rigid bodies and markers they fill.

@@ -446,7 +446,13 @@ fn check(file: &str, key: &str, value: f64, lo: f64, hi: f64) -> Result<(), SimE
         Err(SimError::Range {
             file: file.to_string(),
             key: key.to_string(),
-            value: format!("{value}"),
+            // An f32 key widened to f64 is echoed as the f32 it is (`-0.1`, not
+            // `-0.10000000149011612`); an f64 that is not an f32 keeps all its digits.
+            value: if (value as f32) as f64 == value {
+                format!("{}", value as f32)
+            } else {
+                format!("{value}")
+            },
             expected: format!("a finite number in [{lo}, {hi}]"),
         })
     }

@@ -52,27 +52,41 @@ pub struct SimBenchArgs {
 /// Upper bound of `--seconds` (a measurement longer than 10 minutes adds nothing).
 const MAX_SECONDS: f64 = 600.0;
 
+/// The comma-separated items of `--<option> text`; an item `parse` refuses is named with what
+/// `expected` says.
 fn parse_list<T>(
     option: &str,
     text: &str,
+    expected: &str,
     parse: impl Fn(&str) -> Option<T>,
 ) -> anyhow::Result<Vec<T>> {
     text.split(',')
         .map(|item| {
-            parse(item.trim())
-                .ok_or_else(|| input_error(format!("--{option}: cannot read `{item}`")))
+            parse(item.trim()).ok_or_else(|| {
+                input_error(format!(
+                    "--{option} {text}: cannot read `{item}`; expected {expected}"
+                ))
+            })
         })
         .collect()
 }
 
 fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
-    let grids = parse_list("grid", &args.grid, |s| {
-        let (r, c) = s.split_once('x')?;
-        Some([r.parse::<usize>().ok()?, c.parse::<usize>().ok()?])
-    })?;
-    let envs = parse_list("envs", &args.envs, |s| {
-        s.parse::<usize>().ok().filter(|&n| n > 0)
-    })?;
+    let grids = parse_list(
+        "grid",
+        &args.grid,
+        "ROWSxCOLS items, e.g. 11x13,21x25",
+        |s| {
+            let (r, c) = s.split_once('x')?;
+            Some([r.parse::<usize>().ok()?, c.parse::<usize>().ok()?])
+        },
+    )?;
+    let envs = parse_list(
+        "envs",
+        &args.envs,
+        "whole numbers of environments >= 1, e.g. 1,8,64",
+        |s| s.parse::<usize>().ok().filter(|&n| n > 0),
+    )?;
     if !(args.seconds.is_finite() && args.seconds >= 0.0) {
         return Err(input_error(format!(
             "--seconds {}: expected a non-negative number",
@@ -112,12 +126,16 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
             }
         }
     }
-    let workloads = parse_list("workload", &args.workload, |s| {
-        ["motionless", "replay", "command"]
-            .contains(&s)
-            .then(|| s.to_string())
-    })
-    .map_err(|err| input_error(format!("{err}; expected motionless, replay or command")))?;
+    let workloads = parse_list(
+        "workload",
+        &args.workload,
+        "motionless, replay or command",
+        |s| {
+            ["motionless", "replay", "command"]
+                .contains(&s)
+                .then(|| s.to_string())
+        },
+    )?;
     let mut rows = Vec::new();
     let mut table = String::new();
     for (name, scene) in &scenes {

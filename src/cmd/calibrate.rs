@@ -18,6 +18,7 @@ use rlpkg_calib::driver::{self, CalibratedParams, Plan};
 use rlpkg_calib::fingerprint::{self, ObjectiveRecord};
 use rlpkg_calib::objective::{load_scene, Observer, SimObjective};
 use rlpkg_mocap::{Dataset, Split};
+use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
 
 use crate::error::input_error;
@@ -84,6 +85,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     if let Some(hold) = config.sim.hold_orientation {
         scene.disc.hold_orientation = hold;
     }
+    check_bounds_in_scene(&config, &scene, &args.config)?;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let space = config.space();
 
@@ -182,7 +184,10 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         out_dir.display()
     );
     let created_out_dir = !out_dir.exists();
-    if !recorded {
+    // A folder with a log but no record (written by an earlier version) gets its record once
+    // its log has been read back without error, at the end.
+    let fresh_start = !recorded && !out_dir.join("evaluations.csv").exists();
+    if fresh_start {
         std::fs::create_dir_all(out_dir)
             .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
         driver::write_atomically(
@@ -219,12 +224,19 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     let best = match best {
         Ok(best) => best,
         Err(err) => {
-            if !recorded {
+            if fresh_start {
                 remove_empty_start(out_dir, created_out_dir);
             }
             return Err(driver_error(err));
         }
     };
+    if !recorded && !fresh_start {
+        driver::write_atomically(
+            &out_dir.join(fingerprint::OBJECTIVE_FILE),
+            record.as_bytes(),
+        )
+        .map_err(driver_error)?;
+    }
     bar.finish_and_clear();
     let wall = started.elapsed().as_secs_f64();
 
@@ -256,7 +268,10 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
 /// the output as it was. Best effort: what cannot be removed is a fresh start's, harmless.
 fn remove_empty_start(out_dir: &Path, created_out_dir: bool) {
     let log = out_dir.join("evaluations.csv");
-    let logged = std::fs::read_to_string(&log).map_or(true, |text| text.lines().count() > 1);
+    let logged = match std::fs::read_to_string(&log) {
+        Ok(text) => text.lines().count() > 1,
+        Err(_) => true,
+    };
     if logged {
         return;
     }
@@ -274,6 +289,31 @@ fn driver_error(err: driver::DriverError) -> anyhow::Error {
         driver::DriverError::Log(_) | driver::DriverError::Write { .. } => input_error(err),
         other => anyhow::Error::new(other),
     }
+}
+
+/// Every `[[param]]` bound must be a value the scene accepts (`params.mu_con` in [0, 100], ...):
+/// checked before any rollout, which would otherwise fail on the first candidate beyond it.
+fn check_bounds_in_scene(
+    config: &CalibrateConfig,
+    scene: &SceneConfig,
+    file: &Path,
+) -> anyhow::Result<()> {
+    for (i, spec) in config.params.iter().enumerate() {
+        for (end, value) in [("lower", spec.lower), ("upper", spec.upper)] {
+            let mut candidate = Candidate::of_scene(scene);
+            set_param(&mut candidate, &spec.name, value).map_err(input_error)?;
+            let mut probe = scene.clone();
+            candidate.apply_to(&mut probe);
+            probe.validate(&config.sim.preset).map_err(|err| {
+                input_error(format!(
+                    "{}: key `param[{i}].{end}` = {value} ({}): the scene does not accept it: {err}",
+                    file.display(),
+                    spec.name
+                ))
+            })?;
+        }
+    }
+    Ok(())
 }
 
 /// Applies the command-line overrides to the configuration, with range checks.

@@ -69,6 +69,12 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
                 path.display()
             )));
         }
+        if !path.is_file() {
+            return Err(input_error(format!(
+                "{}: take file not found (expected a Motive CSV export, .csv or .csv.gz)",
+                path.display()
+            )));
+        }
         config
             .take(&id)
             .map_err(|message| input_error(format!("{}: {message}", args.config.display())))?;

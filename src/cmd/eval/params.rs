@@ -116,6 +116,20 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
         )));
     }
     let scene = SceneConfig::load(params_path).map_err(input_error)?;
+    // Every perturbation must stay in the ranges the scene accepts, before any rollout.
+    for &percent in &args.perturb {
+        let mut probe = scene.clone();
+        perturbed(&Candidate::of_scene(&scene), percent).apply_to(&mut probe);
+        probe
+            .validate(&params_path.display().to_string())
+            .map_err(|err| {
+                input_error(format!(
+                    "--perturb {percent}: scaling the parameters by {} leaves the range the \
+                     scene accepts: {err}",
+                    1.0 + percent / 100.0
+                ))
+            })?;
+    }
     // A signal stops the rollouts; the pictures and summary.json are written whole or not at all.
     let _cooperation = crate::interrupt::Cooperation::start();
     // clap's `requires` does not apply to options with a default, so the defaults are set here.

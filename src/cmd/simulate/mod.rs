@@ -132,6 +132,13 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     )
     .map_err(output_error)?;
     outcome.print(wall_s, &out);
+    if let Some((frame, t)) = outcome.non_finite {
+        anyhow::bail!(
+            "the simulation produced non-finite values at frame {frame} (recording time t = {t:.4} s); \
+             the files in {} stop at the frame before",
+            out.display()
+        );
+    }
     if let Some(event) = outcome.health {
         anyhow::bail!(
             "the simulation became unhealthy ({:?}) at recording time t = {:.4} s; the files in {} stop there",

@@ -32,6 +32,9 @@ pub struct Outcome {
     pub gif: Option<(PathBuf, usize)>,
     /// The health event that ended the replay early.
     pub health: Option<rlpkg_sim::HealthEvent>,
+    /// The first frame whose simulated values were not finite (frame, recording time): the replay
+    /// ended there, and the files hold the frames before it.
+    pub non_finite: Option<(usize, f64)>,
     /// Where the simulator ended: substeps from the start of the rest period.
     pub substeps: u64,
     /// Where the simulator ended (s from the start of the rest period).
@@ -62,6 +65,7 @@ impl Outcome {
             stills: Vec::new(),
             gif: None,
             health: None,
+            non_finite: None,
             substeps: 0,
             simulated_s: 0.0,
             dt_s: 0.0,
@@ -154,7 +158,11 @@ impl Outcome {
             "object_error_final_m": self.object_error.last(),
             "package_particle_loss": per_second(self.chamfer.iter().sum()),
             "internal_object_loss": per_second(self.object_error.iter().map(|e| e * e).sum()),
-            "health": self.health.map(|e| format!("{:?} at simulated t = {:.4} s", e.reason, e.time)),
+            "health": match (self.health, self.non_finite) {
+                (_, Some((k, t))) => Some(format!("non-finite simulated values at frame {k} (recording t = {t:.4} s)")),
+                (Some(e), None) => Some(format!("{:?} at simulated t = {:.4} s", e.reason, e.time)),
+                (None, None) => None,
+            },
             "files": {
                 "markers_sim": out.join("markers_sim.csv"),
                 "object_sim": out.join("object_sim.csv"),

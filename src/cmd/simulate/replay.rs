@@ -118,7 +118,7 @@ impl Replay {
             &mut recorder,
         );
         recorder.progress.finish_and_clear();
-        let mut outcome = match result {
+        let outcome = match result {
             Ok(outcomes) => {
                 let mut outcome = recorder.outcome;
                 outcome.health = outcomes[0][0].diverged;
@@ -128,13 +128,28 @@ impl Replay {
                 if let Some(err) = recorder.error {
                     return Err(err);
                 }
+                if recorder.outcome.non_finite.is_some() {
+                    crate::interrupt::check()?;
+                    let outcome = std::mem::replace(&mut recorder.outcome, Outcome::new(0));
+                    return self.finish_files(outcome, recorder.gif.take(), out);
+                }
                 crate::interrupt::check()?;
                 return Err(ReplayError::Stopped.into());
             }
             Err(err) => return Err(input_error(err)),
         };
         crate::interrupt::check()?;
-        if let Some(writer) = recorder.gif {
+        self.finish_files(outcome, recorder.gif, out)
+    }
+
+    /// Closes the GIF and writes the CSVs of `outcome`.
+    fn finish_files(
+        &self,
+        mut outcome: Outcome,
+        gif: Option<GifWriter>,
+        out: &Path,
+    ) -> anyhow::Result<Outcome> {
+        if let Some(writer) = gif {
             let frames = writer.frames();
             outcome.gif = Some((writer.finish().map_err(output_error)?, frames));
         }
@@ -312,6 +327,20 @@ impl Observer for Recorder<'_> {
             .iter()
             .map(|&p| f32x3(p))
             .collect();
+        let disc = observation.disc;
+        let finite = marker_sites
+            .iter()
+            .chain(&grid_sites)
+            .chain(std::iter::once(&disc.position))
+            .flatten()
+            .chain(&disc.orientation)
+            .all(|v| v.is_finite());
+        if !finite {
+            // No NaN row is written: the files end at the last finite frame.
+            self.outcome.non_finite = Some((k, self.recording.tool.t[k]));
+            self.finish(simulator);
+            return;
+        }
         self.outcome.record(
             k,
             self.recording,
@@ -329,7 +358,7 @@ impl Observer for Recorder<'_> {
     }
 
     fn stop(&mut self) -> bool {
-        self.error.is_some() || crate::interrupt::requested()
+        self.error.is_some() || self.outcome.non_finite.is_some() || crate::interrupt::requested()
     }
 
     fn finish(&mut self, simulator: &Simulator) {
