@@ -387,7 +387,7 @@ const CASES: &[Case] = &[
         name: "take file missing",
         files: &[("c.toml", "[default_take]\nsplit = \"train\"\nobject_total_mass_kg = 0.2\n")],
         args: &["{dir}/nothing.csv", "--config", "{dir}/c.toml"],
-        expect: &["nothing.csv: cannot read file"],
+        expect: &["nothing.csv: take file not found"],
     },
     Case {
         name: "garbled take cell",
