@@ -325,7 +325,11 @@ fn outputs_are_written_through_symlinks_and_a_fifo_is_refused() {
     assert_eq!(header, ["frame", "t", "chamfer_m", "object_error_m"]);
     assert!(!rows.is_empty());
 
-    // A FIFO where a CSV goes is refused (exit 2) with its path, and left as it is.
+    // A FIFO where a CSV goes is refused (exit 2) with its path, and left as it is (in a folder
+    // without the first replay's regular files, which a replay refuses to mix with its own).
+    std::fs::remove_file(out.join("markers_sim.csv")).unwrap();
+    std::fs::remove_file(out.join("summary.json")).unwrap();
+    std::fs::remove_dir_all(out.join("frames")).unwrap();
     let fifo = out.join("object_sim.csv");
     std::fs::remove_file(&fifo).unwrap();
     assert!(Command::new("mkfifo")

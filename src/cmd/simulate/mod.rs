@@ -162,14 +162,18 @@ const OUTPUT_FILES: [&str; 5] = [
 /// A replay never writes into a folder that holds an earlier replay's files: the files the new one
 /// does not rewrite (stills at other instants, a GIF under `--no-gif`) would pass for its own.
 fn refuse_earlier_output(out: &Path) -> anyhow::Result<()> {
+    // Regular files only: a symlink or a FIFO placed where an output goes is the user's set-up
+    // (written through, or refused, when the file is written).
+    let regular = |path: &Path| std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file());
     let mut found: Vec<String> = OUTPUT_FILES
         .iter()
-        .filter(|file| out.join(file).exists())
+        .filter(|file| regular(&out.join(file)))
         .map(|file| file.to_string())
         .collect();
     if let Ok(entries) = std::fs::read_dir(out.join("frames")) {
         let mut stills: Vec<String> = entries
             .flatten()
+            .filter(|entry| regular(&entry.path()))
             .map(|entry| entry.file_name().to_string_lossy().into_owned())
             .filter(|name| !name.starts_with('.'))
             .map(|name| format!("frames/{name}"))
