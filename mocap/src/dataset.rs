@@ -676,7 +676,10 @@ fn read_meta(path: &Path) -> Result<Meta, DataError> {
             .map(|(i, p)| ("initial_marker_positions_m", i, p)),
     );
     for (key, index, position) in positions {
-        if position.iter().any(|v| !(v.abs() <= PLAUSIBLE_MAGNITUDE)) {
+        if position
+            .iter()
+            .any(|v| !(v.is_finite() && v.abs() <= PLAUSIBLE_MAGNITUDE))
+        {
             let at = if key == "initial_suction_cup_position_m" {
                 key.to_string()
             } else {
