@@ -31,6 +31,8 @@ enum Command {
     Simulate(cmd::simulate::SimulateArgs),
     /// Fit simulator parameters to recorded trajectories with Bayesian optimisation.
     Calibrate(cmd::calibrate::CalibrateArgs),
+    /// Approximate posterior over a calibration's parameters from its evaluations (no simulation).
+    Posterior(cmd::posterior::PosteriorArgs),
     /// Import and clean motion-capture data.
     #[command(subcommand)]
     Data(cmd::data::DataCommand),
@@ -48,6 +50,7 @@ fn main() {
         Command::Export(args) => cmd::export::run(args),
         Command::Simulate(args) => cmd::simulate::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
+        Command::Posterior(args) => cmd::posterior::run(args),
         Command::Data(command) => cmd::data::run(command),
         Command::Bench(command) => cmd::bench::run(command),
     };

@@ -286,3 +286,63 @@ fn ctrl_c_while_writing_leaves_no_temporary_file() {
     assert!(!out.path().join("replay.gif").exists());
     assert!(!out.path().join("summary.json").exists());
 }
+
+#[test]
+fn outputs_are_written_through_symlinks_and_a_fifo_is_refused() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("configs/scenes/calibrated-coarse-soft-film.toml")
+        .display()
+        .to_string();
+    let simulate = |out: &Path| {
+        rlpkg(&[
+            "simulate",
+            trajectory("HHLHL").to_str().unwrap(),
+            "--params",
+            &scene,
+            "--seconds",
+            "0.05",
+            "--no-gif",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    // A symlink in the output folder: the file it points to is replaced, the link kept.
+    let dir = tempfile::tempdir().unwrap();
+    let (out, store) = (dir.path().join("out"), dir.path().join("store"));
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::create_dir_all(&store).unwrap();
+    std::fs::write(store.join("metrics.csv"), "old").unwrap();
+    std::os::unix::fs::symlink(store.join("metrics.csv"), out.join("metrics.csv")).unwrap();
+    let result = simulate(&out);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let link = std::fs::symlink_metadata(out.join("metrics.csv")).unwrap();
+    assert!(link.file_type().is_symlink());
+    let (header, rows) = numeric_rows(&store.join("metrics.csv"));
+    assert_eq!(header, ["frame", "t", "chamfer_m", "object_error_m"]);
+    assert!(!rows.is_empty());
+
+    // A FIFO where a CSV goes is refused (exit 2) with its path, and left as it is.
+    let fifo = out.join("object_sim.csv");
+    std::fs::remove_file(&fifo).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    let result = simulate(&out);
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains(&format!("{} is a FIFO", fifo.display())),
+        "{stderr}"
+    );
+    use std::os::unix::fs::FileTypeExt;
+    assert!(std::fs::symlink_metadata(&fifo)
+        .unwrap()
+        .file_type()
+        .is_fifo());
+}

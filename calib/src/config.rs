@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::bo::{Acquisition, BoSettings};
-use crate::loss::LossWeights;
 use crate::space::{ParamSpace, ParamSpec};
+use rlpkg_replay::loss::LossWeights;
 
 /// Simulator parameter names that can be calibrated (defined beside the replay set-up).
 pub use rlpkg_replay::PARAMETER_NAMES;

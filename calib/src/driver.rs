@@ -10,7 +10,6 @@
 //! candidates, and the log keeps one bad region from flattening the surrogate everywhere else.
 
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -301,8 +300,8 @@ pub const OUTPUT_FILES: [&str; 4] = [
 ];
 
 /// Removes from `dir` the temporary files that [`write_atomically`] leaves when the process is
-/// stopped at once (a second Ctrl-C, a kill) while writing one of `files`: `.`, the file name, `.`
-/// and six letters or digits (`atomic-write-file`'s names). Returns what it removed.
+/// stopped at once (a second Ctrl-C, a kill) while writing one of `files`
+/// ([`rlpkg_files::is_temporary_of`]). Returns what it removed.
 pub fn clean_leftovers(dir: &Path, files: &[&str]) -> Result<Vec<PathBuf>, DriverError> {
     let fail = |path: &Path, e: std::io::Error| DriverError::Write {
         path: path.to_path_buf(),
@@ -317,11 +316,9 @@ pub fn clean_leftovers(dir: &Path, files: &[&str]) -> Result<Vec<PathBuf>, Drive
     for entry in entries {
         let entry = entry.map_err(|e| fail(dir, e))?;
         let name = entry.file_name().to_string_lossy().into_owned();
-        let temporary = files.iter().any(|file| {
-            name.strip_prefix(&format!(".{file}.")).is_some_and(|tail| {
-                tail.len() == 6 && tail.bytes().all(|b| b.is_ascii_alphanumeric())
-            })
-        });
+        let temporary = files
+            .iter()
+            .any(|file| rlpkg_files::is_temporary_of(&name, file));
         if temporary {
             let path = entry.path();
             std::fs::remove_file(&path).map_err(|e| fail(&path, e))?;
@@ -331,16 +328,12 @@ pub fn clean_leftovers(dir: &Path, files: &[&str]) -> Result<Vec<PathBuf>, Drive
     Ok(removed)
 }
 
-/// Writes a temporary file in the destination's folder, then renames it over the destination.
+/// Writes `bytes` to `path` atomically ([`rlpkg_files::write_atomic`]).
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), DriverError> {
-    let fail = |message: String| DriverError::Write {
+    rlpkg_files::write_atomic(path, bytes).map_err(|e| DriverError::Write {
         path: path.to_path_buf(),
-        message,
-    };
-    let mut file =
-        atomic_write_file::AtomicWriteFile::open(path).map_err(|e| fail(e.to_string()))?;
-    file.write_all(bytes).map_err(|e| fail(e.to_string()))?;
-    file.commit().map_err(|e| fail(e.to_string()))
+        message: e.to_string(),
+    })
 }
 
 #[cfg(test)]

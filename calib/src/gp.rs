@@ -370,6 +370,11 @@ impl GaussianProcess {
         &self.hyper
     }
 
+    /// The learned observation-noise variance `σ²` in original output units.
+    pub fn noise_variance(&self) -> f64 {
+        self.hyper.log_noise_var.exp() * self.y_scale * self.y_scale
+    }
+
     /// Log marginal likelihood of the (standardised) training outputs under the current hyperparameters.
     pub fn log_marginal_likelihood(&self) -> f64 {
         let log_det: f64 = 2.0

@@ -6,7 +6,6 @@
 //! failed write never leaves a half-written file.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -833,19 +832,12 @@ pub fn clean_leftovers(root: &Path) -> Result<Vec<String>, DataError> {
                     target.display()
                 ));
             }
-        } else if is_manifest_temp(&name) {
+        } else if rlpkg_files::is_temporary_of(&name, "manifest.toml") {
             fs::remove_file(&path).map_err(io_error(&path))?;
             done.push(format!("removed the unfinished file {}", path.display()));
         }
     }
     Ok(done)
-}
-
-/// The temporary file name `atomic-write-file` uses for `manifest.toml`: `.manifest.toml.` and
-/// six random characters.
-fn is_manifest_temp(name: &str) -> bool {
-    name.strip_prefix(".manifest.toml.")
-        .is_some_and(|rest| rest.len() == 6 && rest.chars().all(|c| c.is_ascii_alphanumeric()))
 }
 
 /// Appends one CSV row with 6 decimals (micrometres, microseconds), as the shipped data.
@@ -855,11 +847,9 @@ fn push_row(text: &mut String, values: &[f64]) {
     text.push('\n');
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same folder and a rename.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    let mut file = atomic_write_file::AtomicWriteFile::open(path).map_err(io_error(path))?;
-    file.write_all(bytes).map_err(io_error(path))?;
-    file.commit().map_err(io_error(path))
+/// Writes `bytes` to `path` atomically ([`rlpkg_files::write_atomic`]).
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
+    rlpkg_files::write_atomic(path, bytes).map_err(io_error(path))
 }
 
 #[cfg(test)]

@@ -1,4 +1,5 @@
-//! Time derivatives of sampled tracks, shared by the Motive import and the robot trajectory files.
+//! Time derivatives of sampled series by finite differences: velocities and accelerations of the
+//! imported tracks, and the angular velocity of an orientation series.
 
 use glam::DQuat;
 
@@ -27,4 +28,40 @@ pub fn angular_velocity(q: &[[f64; 4]], t: &[f64]) -> Vec<[f64; 3]> {
             [2.0 * product.x, 2.0 * product.y, 2.0 * product.z]
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::*;
+
+    fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    }
+
+    #[test]
+    fn gradient_is_central_inside_and_one_sided_at_the_ends() {
+        let t = [0.0, 1.0, 3.0, 4.0];
+        let x = [[0.0], [1.0], [9.0], [16.0]];
+        assert_eq!(gradient(&x, &t), [[1.0], [3.0], [5.0], [7.0]]);
+        assert_eq!(gradient(&[[2.0, 3.0]], &[0.5]), [[0.0, 0.0]]);
+    }
+
+    #[test]
+    fn angular_velocity_of_a_steady_turn() {
+        // 0.5 rad/s about world Y, sampled at 100 Hz.
+        let t: Vec<f64> = (0..50).map(|k| k as f64 * 0.01).collect();
+        let q: Vec<[f64; 4]> = t
+            .iter()
+            .map(|t| [0.0, (0.25 * t).sin(), 0.0, (0.25 * t).cos()])
+            .collect();
+        for w in angular_velocity(&q, &t) {
+            assert!(dist(w, [0.0, 0.5, 0.0]) < 1e-4, "{w:?}");
+        }
+        // Motive's (x, y, z, w) order is glam's: a quarter turn about Y takes X to -Z.
+        let quarter = (std::f64::consts::PI / 4.0).sin_cos();
+        let v = DQuat::from_array([0.0, quarter.0, 0.0, quarter.1]).mul_vec3(DVec3::X);
+        assert!(dist(v.to_array(), [0.0, 0.0, -1.0]) < 1e-12, "{v:?}");
+    }
 }

@@ -1261,23 +1261,6 @@ mod tests {
         assert!(imported.report.to_string().contains("estimated transform"));
     }
 
-    #[test]
-    fn angular_velocity_of_a_steady_turn() {
-        // 0.5 rad/s about world Y, sampled at 100 Hz.
-        let t: Vec<f64> = (0..50).map(|k| k as f64 * 0.01).collect();
-        let q: Vec<[f64; 4]> = t
-            .iter()
-            .map(|t| [0.0, (0.25 * t).sin(), 0.0, (0.25 * t).cos()])
-            .collect();
-        for w in angular_velocity(&q, &t) {
-            assert!(dist(w, [0.0, 0.5, 0.0]) < 1e-4, "{w:?}");
-        }
-        // Motive's (x, y, z, w) order is glam's: a quarter turn about Y takes X to -Z.
-        let quarter = (std::f64::consts::PI / 4.0).sin_cos();
-        let v = DQuat::from_array([0.0, quarter.0, 0.0, quarter.1]).mul_vec3(DVec3::X);
-        assert!(dist(v.to_array(), [0.0, 0.0, -1.0]) < 1e-12, "{v:?}");
-    }
-
     fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
         ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
     }

@@ -5,50 +5,30 @@
 //! * [`target`]: the scene presets with grid and time-step overrides ([`load_scene`]) and a recording
 //!   prepared for replay ([`Target`]: placement, tool motion, the frames to compare);
 //! * [`rollout`]: named simulator parameters ([`Candidate`]) and the batched rollout of candidates x
-//!   recordings, with per-frame hooks ([`Observer`]);
+//!   recordings, with per-frame hooks ([`Observer`]) and, for pictures, extra stops and the clock of
+//!   the compared frames ([`Schedule`], [`FrameClock`]);
 //! * [`loss`]: the comparison with the recording: the package Chamfer distance (the one
 //!   implementation in the workspace), the object error, the paper's Table 1;
 //! * [`evaluate`]: per-marker errors, the sensitivity perturbation, the real-time factor;
+//! * [`synthetic`]: synthetic recordings made by the simulator from known parameters, with a real
+//!   recording's occlusion and marker noise (parameter-recovery checks);
 //! * [`workload`]: many different, moving environments from the recordings (randomised masses),
-//!   e.g. for `rlpkg bench sim`.
+//!   e.g. for `rlpkg bench sim`;
+//! * [`error`]: what can go wrong ([`ReplayError`]).
 
 #![warn(missing_docs)]
 
+pub mod error;
 pub mod evaluate;
 pub mod loss;
 pub mod rollout;
+pub mod synthetic;
 pub mod target;
 pub mod workload;
 
+pub use error::ReplayError;
 pub use rollout::{
-    get_param, mean_loss, rollout, set_param, Candidate, FrameObservation, Observer,
-    RolloutOutcome, PARAMETER_NAMES,
+    get_param, mean_loss, rollout, rollout_scheduled, set_param, Candidate, FrameClock,
+    FrameObservation, Observer, RolloutOutcome, Schedule, PARAMETER_NAMES,
 };
 pub use target::{load_scene, Target};
-
-use rlpkg_sim::SimError;
-
-/// Errors of setting up or running a replay.
-#[derive(Debug, thiserror::Error)]
-pub enum ReplayError {
-    /// The simulator rejected the scene or an environment.
-    #[error(transparent)]
-    Sim(#[from] SimError),
-    /// A recorded trajectory cannot be replayed.
-    #[error("trajectory {id}: {message}")]
-    Trajectory {
-        /// Trajectory id.
-        id: String,
-        /// What is wrong.
-        message: String,
-    },
-    /// The recordings cannot be read.
-    #[error(transparent)]
-    Data(#[from] rlpkg_mocap::DataError),
-    /// An unknown parameter name.
-    #[error("unknown simulator parameter `{0}`")]
-    UnknownParameter(String),
-    /// The observer asked the rollout to stop ([`Observer::stop`]).
-    #[error("the rollout was stopped")]
-    Stopped,
-}

@@ -9,15 +9,15 @@
 //! (barycentric, nearest triangle at rest), evaluated on the deformed sheet; not the study's 42
 //! nominal grid vertices, which sit up to 1.5 cm off the real markers (§12, item 5). Recorded frame
 //! `k` (trajectory time `t_k`) is compared with the state at the substep nearest to
-//! `rest + t_k`.
+//! `rest + t_k` ([`FrameClock`]); a [`Schedule`] can add stops between the frames (pictures).
 
 use std::sync::Arc;
 
 use rlpkg_sim::{DiscState, HealthEvent, Model, Params, SceneConfig, Simulator, SurfaceEmbedding};
 
+use crate::error::ReplayError;
 use crate::loss::{LossWeights, TrajectoryLoss};
 use crate::target::Target;
-use crate::ReplayError;
 
 /// Simulator parameter names that can be set by name: the paper's names, Warp's friction `k_con_f`,
 /// and `disc_mass_scale` (the scene's `disc.mass_scale`, simulated disc kg per recorded kg).
@@ -122,6 +122,11 @@ pub struct FrameObservation<'a> {
 
 /// Hooks into a rollout: per-frame observations (pictures, per-marker errors) and progress.
 pub trait Observer {
+    /// Called once with the simulator at rest, before the first substep.
+    fn start(&mut self, _simulator: &Simulator) {}
+    /// Called at every extra stop of the [`Schedule`] while an environment is live, before the
+    /// frames compared at the same substep.
+    fn instant(&mut self, _substep: u64, _simulator: &Simulator) {}
     /// Called at every compared frame of every live environment.
     fn frame(&mut self, _observation: &FrameObservation) {}
     /// Called after every stepping chunk with simulated substeps done and planned.
@@ -131,9 +136,48 @@ pub trait Observer {
     fn stop(&mut self) -> bool {
         false
     }
+    /// Called once with the simulator where the rollout ended (every frame compared, or every
+    /// environment diverged); not when the rollout was stopped.
+    fn finish(&mut self, _simulator: &Simulator) {}
 }
 
 impl Observer for () {}
+
+/// How a recorded time maps to the substep it is compared at, counted from the start of the rest
+/// period: the nearest substep to `rest + t`, computed one of two ways that can differ by one
+/// substep when `rest + t` falls half-way between two substeps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FrameClock {
+    /// `(rest + t) / dt` with the simulator's single-precision substep length `dt`: the
+    /// calibration's and the evaluations' clock.
+    #[default]
+    SubstepLength,
+    /// `(rest + t) · rate` with the scene's substep rate in double precision: `rlpkg simulate`'s
+    /// clock.
+    SubstepRate,
+}
+
+impl FrameClock {
+    /// The substep at trajectory time `t` (s; negative during the rest period) in `scene`.
+    pub fn substep_at(self, scene: &SceneConfig, t: f64) -> u64 {
+        let rest = f64::from(scene.cups.rest_time_s);
+        let substeps = match self {
+            Self::SubstepLength => (rest + t) / f64::from(scene.dt()),
+            Self::SubstepRate => (rest + t) * scene.integrator.substep_rate_hz,
+        };
+        substeps.round().max(0.0) as u64
+    }
+}
+
+/// When a rollout stops: the clock of the compared frames and extra stops between them.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Schedule {
+    /// How the compared frames' times map to substeps.
+    pub clock: FrameClock,
+    /// Substeps (from the start of the rest period) at which [`Observer::instant`] is called, e.g.
+    /// pictures during the rest period; the simulator steps in chunks between every stop.
+    pub extra_stops: Vec<u64>,
+}
 
 /// The result of one environment of a rollout.
 #[derive(Debug, Clone)]
@@ -156,6 +200,17 @@ pub fn rollout(
     candidates: &[Candidate],
     observer: &mut dyn Observer,
 ) -> Result<Vec<Vec<RolloutOutcome>>, ReplayError> {
+    rollout_scheduled(model, targets, candidates, &Schedule::default(), observer)
+}
+
+/// As [`rollout`], stopping as `schedule` says.
+pub fn rollout_scheduled(
+    model: &Arc<Model>,
+    targets: &[Target],
+    candidates: &[Candidate],
+    schedule: &Schedule,
+    observer: &mut dyn Observer,
+) -> Result<Vec<Vec<RolloutOutcome>>, ReplayError> {
     let n_targets = targets.len();
     let n_candidates = candidates.len();
     let mut by_length: Vec<usize> = (0..n_targets).collect();
@@ -176,19 +231,21 @@ pub fn rollout(
     let embeddings: Vec<SurfaceEmbedding> = (0..n_targets)
         .map(|t| sim.embed(env_of[t][0], &targets[t].initial_markers))
         .collect();
-    let rest = model.config.cups.rest_time_s as f64;
-    let dt = sim.dt() as f64;
     // Substep of each compared frame, per target.
     let frame_substeps: Vec<Vec<u64>> = targets
         .iter()
         .map(|t| {
             t.times
                 .iter()
-                .map(|&tk| ((rest + tk) / dt).round() as u64)
+                .map(|&tk| schedule.clock.substep_at(&model.config, tk))
                 .collect()
         })
         .collect();
+    let mut extra_stops = schedule.extra_stops.clone();
+    extra_stops.sort_unstable();
+    extra_stops.dedup();
     let mut checkpoints: Vec<u64> = frame_substeps.iter().flatten().copied().collect();
+    checkpoints.extend(&extra_stops);
     checkpoints.sort_unstable();
     checkpoints.dedup();
     let total = checkpoints.last().copied().unwrap_or(0);
@@ -205,8 +262,16 @@ pub fn rollout(
         })
         .collect();
     let mut next_frame = vec![0usize; n_targets];
+    let mut next_extra_stop = 0;
+    observer.start(&sim);
     for &substep in &checkpoints {
         sim.step(substep - sim.substep());
+        if extra_stops.get(next_extra_stop) == Some(&substep) {
+            next_extra_stop += 1;
+            if (0..sim.num_envs()).any(|env| !sim.is_frozen(env)) {
+                observer.instant(substep, &sim);
+            }
+        }
         // Frames closer together than one substep share it: all of them are compared there.
         for (t, target) in targets.iter().enumerate() {
             while let Some(&at) = frame_substeps[t].get(next_frame[t]) {
@@ -261,6 +326,7 @@ pub fn rollout(
         let (c, t) = slot_of_env[event.env];
         outcomes[c][t].diverged.get_or_insert(*event);
     }
+    observer.finish(&sim);
     Ok(outcomes)
 }
 
@@ -277,7 +343,7 @@ mod tests {
     use super::*;
     use rlpkg_mocap::Trajectory;
 
-    use crate::load_scene;
+    use crate::target::load_scene;
 
     #[test]
     fn parameters_by_name_round_trip() {
@@ -388,6 +454,85 @@ mod tests {
         assert!(matches!(stopped, Err(ReplayError::Stopped)));
         assert_eq!(observer.frames, 3, "the rollout goes on no further");
         assert!(target.times.len() > 3);
+    }
+
+    #[test]
+    fn the_two_clocks_differ_only_half_way_between_substeps() {
+        let mut scene = load_scene("reference", None, None).unwrap();
+        scene.cups.rest_time_s = 1.0;
+        scene.integrator.substep_rate_hz = 300.0;
+        // 1.025 s is 307.5 substeps: the double-precision rate rounds up, the single-precision
+        // substep length (a little over 1/300 s) gives 307.4999... and rounds down.
+        assert_eq!(FrameClock::SubstepRate.substep_at(&scene, 0.025), 308);
+        assert_eq!(FrameClock::SubstepLength.substep_at(&scene, 0.025), 307);
+        for t in [-1.0, -0.5, 0.0, 0.02, 1.0] {
+            let exact = ((1.0 + t) * 300.0_f64).round() as u64;
+            assert_eq!(FrameClock::SubstepRate.substep_at(&scene, t), exact);
+            assert_eq!(FrameClock::SubstepLength.substep_at(&scene, t), exact);
+        }
+        // Before the rest period starts there is no substep to go back to.
+        assert_eq!(FrameClock::SubstepRate.substep_at(&scene, -2.0), 0);
+        assert_eq!(FrameClock::SubstepLength.substep_at(&scene, -2.0), 0);
+    }
+
+    #[test]
+    fn extra_stops_are_observed_in_order_and_leave_the_results_unchanged() {
+        /// Logs every hook as (hook, substep).
+        #[derive(Default)]
+        struct Log(Vec<(&'static str, u64)>);
+        impl Observer for Log {
+            fn start(&mut self, simulator: &Simulator) {
+                self.0.push(("start", simulator.substep()));
+            }
+            fn instant(&mut self, substep: u64, simulator: &Simulator) {
+                assert_eq!(simulator.substep(), substep);
+                self.0.push(("instant", substep));
+            }
+            fn frame(&mut self, observation: &FrameObservation) {
+                self.0.push(("frame", observation.simulator.substep()));
+            }
+            fn finish(&mut self, simulator: &Simulator) {
+                self.0.push(("finish", simulator.substep()));
+            }
+        }
+        let mut scene = load_scene("reference", Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        scene.health.object_outside = false;
+        let model = Arc::new(Model::new(&scene).unwrap());
+        let target = Target::new(&recorded("HHLHL"), Some(0.02), false).unwrap();
+        let candidate = Candidate::of_scene(&scene);
+        let plain = rollout(&model, std::slice::from_ref(&target), &[candidate], &mut ()).unwrap();
+
+        let rest_substeps = FrameClock::SubstepLength.substep_at(&scene, 0.0);
+        let schedule = Schedule {
+            clock: FrameClock::SubstepLength,
+            // Unsorted, repeated, and one stop on a frame's substep.
+            extra_stops: vec![rest_substeps / 2, 0, rest_substeps, rest_substeps / 2],
+        };
+        let mut log = Log::default();
+        let scheduled = rollout_scheduled(
+            &model,
+            std::slice::from_ref(&target),
+            &[candidate],
+            &schedule,
+            &mut log,
+        )
+        .unwrap();
+        assert_eq!(plain[0][0].loss.frames, scheduled[0][0].loss.frames);
+        let frames = target.times.len();
+        let last = FrameClock::SubstepLength.substep_at(&scene, target.duration());
+        let mut expected = vec![
+            ("start", 0),
+            ("instant", 0),
+            ("instant", rest_substeps / 2),
+            ("instant", rest_substeps),
+        ];
+        expected.extend((0..frames).map(|k| {
+            let at = FrameClock::SubstepLength.substep_at(&scene, target.times[k]);
+            ("frame", at)
+        }));
+        expected.push(("finish", last));
+        assert_eq!(log.0, expected);
     }
 
     #[test]

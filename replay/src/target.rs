@@ -11,7 +11,7 @@ use rlpkg_sim::{
     EpisodeSpec, Params, Placement, SceneConfig, SimError, ToolSample, ToolTrajectory,
 };
 
-use crate::ReplayError;
+use crate::error::ReplayError;
 
 /// 6 x 7 marker grid with `between` particles between markers, and optionally the time step.
 pub fn load_scene(

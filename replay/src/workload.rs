@@ -11,8 +11,8 @@ use rand::SeedableRng;
 use rlpkg_mocap::Dataset;
 use rlpkg_sim::{EpisodeSpec, Model, Params, Randomization, SceneConfig, Simulator};
 
+use crate::error::ReplayError;
 use crate::target::Target;
-use crate::ReplayError;
 
 /// Object masses drawn for the replayed environments (kg): around the recorded disc-plus-weight
 /// masses, 0.285, 0.426 and 0.570 kg.

@@ -5,5 +5,6 @@ pub mod calibrate;
 pub mod data;
 pub mod eval;
 pub mod export;
+pub mod posterior;
 pub mod simulate;
 pub mod train;

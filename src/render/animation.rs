@@ -4,7 +4,9 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use super::{render_rgb, render_side_by_side, temporary_path, Frame, RenderError, View};
+use super::draw::View;
+use super::frame::{Frame, RenderError};
+use super::picture::{render_rgb, render_side_by_side, temporary_path};
 
 /// Quantiser speed 1..=30: higher is faster and coarser; 10 keeps shading smooth at a few ms per frame.
 const QUANTISER_SPEED: i32 = 10;
@@ -138,8 +140,8 @@ impl Drop for GifWriter {
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::KnownScene;
     use super::*;
+    use crate::render::test_scene::KnownScene;
 
     #[test]
     fn gif_decodes_with_the_expected_frame_count_and_size() {

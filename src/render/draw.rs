@@ -7,7 +7,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 use glam::Vec3;
 
 use super::camera::{Bounds, Camera, Panel};
-use super::{Frame, RenderError};
+use super::frame::{Frame, RenderError};
 
 const BACKGROUND: RGBColor = RGBColor(250, 250, 248);
 const PANEL_BORDER: RGBColor = RGBColor(200, 200, 200);

@@ -26,7 +26,7 @@ fn write_plot_sized(
     size: (u32, u32),
     draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
-    super::ensure_font()?;
+    super::frame::ensure_font()?;
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())

@@ -5,7 +5,6 @@
 //! when the critic is given). The batch dimension is symbolic (`dim_param = "batch"`).
 
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::Path;
 
 use prost::Message;
@@ -49,13 +48,10 @@ pub fn write_onnx(graph: &PolicyGraph, path: &Path) -> Result<u64, ExportError> 
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so readers
 /// never see a half-written file.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
-    let io_err = |source| ExportError::Io {
+    rlpkg_files::write_atomic(path, bytes).map_err(|source| ExportError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let mut file = atomic_write_file::AtomicWriteFile::open(path).map_err(io_err)?;
-    file.write_all(bytes).map_err(io_err)?;
-    file.commit().map_err(io_err)
+    })
 }
 
 /// Builds the ONNX `ModelProto` for `graph` (validated first).

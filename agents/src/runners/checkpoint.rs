@@ -10,7 +10,6 @@
 //! `latest` (itself replaced atomically), so a crash never leaves a half-written checkpoint in use.
 //! Floats in `state.json` are stored as their bit patterns so a resume continues bit-identically.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use burn::module::Module;
@@ -186,15 +185,6 @@ fn update_number(name: &str) -> Option<usize> {
     digits.parse().ok()
 }
 
-/// Whether `name` is a temporary file of `file` as `atomic-write-file` names them: `.`, the file
-/// name, `.` and six letters or digits.
-fn is_temporary_of(name: &str, file: &str) -> bool {
-    name.strip_prefix('.')
-        .and_then(|rest| rest.strip_prefix(file))
-        .and_then(|rest| rest.strip_prefix('.'))
-        .is_some_and(|tail| tail.len() == 6 && tail.bytes().all(|b| b.is_ascii_alphanumeric()))
-}
-
 /// Removes what a run stopped at once (a second Ctrl-C, a kill) left in `run_dir`: the temporary
 /// copies of `config.toml`, `policy.onnx` and `checkpoints/latest`, and unfinished checkpoint
 /// folders. Nothing in use is touched: these are only ever renamed into place or dropped. Returns
@@ -218,7 +208,10 @@ pub fn clean_leftovers(run_dir: &Path) -> Result<Vec<PathBuf>, AgentError> {
             let partial = dir == checkpoints && name.starts_with(PARTIAL_PREFIX);
             if partial && path.is_dir() {
                 std::fs::remove_dir_all(&path).map_err(|e| AgentError::io(&path, e))?;
-            } else if files.iter().any(|file| is_temporary_of(&name, file)) {
+            } else if files
+                .iter()
+                .any(|file| rlpkg_files::is_temporary_of(&name, file))
+            {
                 std::fs::remove_file(&path).map_err(|e| AgentError::io(&path, e))?;
             } else {
                 continue;
@@ -231,10 +224,7 @@ pub fn clean_leftovers(run_dir: &Path) -> Result<Vec<PathBuf>, AgentError> {
 
 /// Writes `bytes` to `path` through a temporary file in the same folder.
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), AgentError> {
-    let mut file =
-        atomic_write_file::AtomicWriteFile::open(path).map_err(|e| AgentError::io(path, e))?;
-    file.write_all(bytes).map_err(|e| AgentError::io(path, e))?;
-    file.commit().map_err(|e| AgentError::io(path, e))
+    rlpkg_files::write_atomic(path, bytes).map_err(|e| AgentError::io(path, e))
 }
 
 impl Trainer {

@@ -9,6 +9,7 @@ use std::path::Path;
 use rlpkg_sim::{Randomization, SceneConfig, ToolLimits};
 use serde::{Deserialize, Serialize};
 
+use super::sensors::{SensorConfig, MAX_DELAY_STEPS};
 use crate::EnvError;
 
 /// The whole `[transport]` table.
@@ -44,6 +45,32 @@ pub struct TransportConfig {
     pub reward: RewardWeights,
     /// Domain randomisation.
     pub randomization: TransportRandomization,
+    /// What the actor observes (optional; default `"privileged"`).
+    #[serde(default, skip_serializing_if = "ObservationMode::is_privileged")]
+    pub observation: ObservationMode,
+    /// The cell's sensors: required with `observation = "sensors"`, refused otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensors: Option<SensorConfig>,
+}
+
+/// What the actor observes (`transport.observation`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ObservationMode {
+    /// The simulator's exact tool state and each cup's utilisation (load over capacity), which no
+    /// real sensor measures.
+    #[default]
+    Privileged,
+    /// Only what a real cell measures, with noise and delay (`[transport.sensors]`); the critic
+    /// keeps the exact, privileged state.
+    Sensors,
+}
+
+impl ObservationMode {
+    /// Whether this is the default, [`ObservationMode::Privileged`].
+    pub fn is_privileged(&self) -> bool {
+        *self == ObservationMode::Privileged
+    }
 }
 
 /// Bounds of the action and of the robot carrying the tool (SI).
@@ -320,6 +347,72 @@ impl TransportConfig {
                 file: source.to_string(),
                 message: e.to_string(),
             })?;
+        self.validate_sensors(source)
+    }
+
+    /// Checks `observation` against `[transport.sensors]` and the sensors' ranges.
+    fn validate_sensors(&self, s: &str) -> Result<(), EnvError> {
+        let sensors = match (self.observation, &self.sensors) {
+            (ObservationMode::Privileged, None) => return Ok(()),
+            (ObservationMode::Privileged, Some(_)) => {
+                return Err(bad(
+                    s,
+                    "sensors",
+                    "a table",
+                    "no [transport.sensors] table unless observation = \"sensors\"",
+                ))
+            }
+            (ObservationMode::Sensors, None) => {
+                return Err(bad(
+                    s,
+                    "sensors",
+                    "missing",
+                    "a [transport.sensors] table with observation = \"sensors\"",
+                ))
+            }
+            (ObservationMode::Sensors, Some(sensors)) => sensors,
+        };
+        let [lo, hi] = sensors.supply_vacuum_kpa;
+        if !(lo.is_finite() && hi.is_finite() && 1.0 <= lo && lo <= hi && hi <= 90.0) {
+            return Err(bad(
+                s,
+                "sensors.supply_vacuum_kpa",
+                format!("{:?}", sensors.supply_vacuum_kpa),
+                "[low, high] within [1, 90] kPa below ambient (a cell supplies 20-30)",
+            ));
+        }
+        for (key, [lo, hi]) in [
+            (
+                "sensors.observation_delay_steps",
+                sensors.observation_delay_steps,
+            ),
+            ("sensors.action_delay_steps", sensors.action_delay_steps),
+        ] {
+            if !(lo <= hi && hi <= MAX_DELAY_STEPS) {
+                return Err(bad(
+                    s,
+                    key,
+                    format!("[{lo}, {hi}]"),
+                    &format!("[low, high] control steps within [0, {MAX_DELAY_STEPS}]"),
+                ));
+            }
+        }
+        let n = &sensors.noise;
+        for (key, value, high) in [
+            ("sensors.noise.vacuum_pa", n.vacuum_pa, 1e4),
+            ("sensors.noise.force_n", n.force_n, 100.0),
+            ("sensors.noise.torque_n_m", n.torque_n_m, 10.0),
+            ("sensors.noise.position_m", n.position_m, 0.1),
+            ("sensors.noise.orientation_rad", n.orientation_rad, 0.5),
+            ("sensors.noise.velocity_m_s", n.velocity_m_s, 1.0),
+            (
+                "sensors.noise.angular_velocity_rad_s",
+                n.angular_velocity_rad_s,
+                5.0,
+            ),
+        ] {
+            check(s, key, value, 0.0, high)?;
+        }
         Ok(())
     }
 }
@@ -378,7 +471,7 @@ pub fn load_scene(config: &TransportConfig, source: &str) -> Result<SceneConfig,
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transport::test_support::{config, test_table};
+    use crate::transport::test_support::{config, sensors_table, test_table};
     use crate::transport::Transport;
 
     #[test]
@@ -472,6 +565,63 @@ mod tests {
             .to_string();
         assert!(
             err.contains("transport.paths") && err.contains("NOPE"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn sensor_settings_are_checked_and_name_their_key() {
+        let text = sensors_table();
+        let sensors = config(&text).sensors.expect("sensors");
+        assert_eq!(sensors.observation_delay_steps, [1, 2]);
+        for (from, to, key) in [
+            (
+                "observation = \"sensors\"",
+                "observation = \"sonar\"",
+                "transport.observation",
+            ),
+            (
+                "action_delay_steps = [1, 2]",
+                "action_delay_steps = [2, 1]",
+                "transport.sensors.action_delay_steps",
+            ),
+            (
+                "observation_delay_steps = [1, 2]",
+                "observation_delay_steps = [1, 20]",
+                "transport.sensors.observation_delay_steps",
+            ),
+            (
+                "supply_vacuum_kpa = [20.0, 30.0]",
+                "supply_vacuum_kpa = [30.0, 20.0]",
+                "transport.sensors.supply_vacuum_kpa",
+            ),
+            (
+                "vacuum_pa = 200.0",
+                "vacuum_pa = -1.0",
+                "transport.sensors.noise.vacuum_pa",
+            ),
+            (
+                "observation = \"sensors\"",
+                "observation = \"privileged\"",
+                "transport.sensors",
+            ),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let err = TransportConfig::from_toml_str(&text.replace(from, to), "t.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("t.toml") && err.contains(key), "{to}: {err}");
+        }
+        // Sensors asked for without their table.
+        let without = test_table().replace(
+            "settle_s = 0.5\n",
+            "settle_s = 0.5\nobservation = \"sensors\"\n",
+        );
+        let err = TransportConfig::from_toml_str(&without, "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("transport.sensors") && err.contains("missing"),
             "{err}"
         );
     }

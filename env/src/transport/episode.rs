@@ -8,7 +8,8 @@ use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{
-    EnvObservation, EnvSnapshot, EpisodeSpec, Model, SceneConfig, Simulator, ToolTrajectory,
+    EnvObservation, EnvSnapshot, EpisodeSpec, Model, Placement, SceneConfig, Simulator,
+    ToolTrajectory,
 };
 use serde::{Deserialize, Serialize};
 
@@ -134,6 +135,20 @@ fn nearest_path(paths: &[TransportPath], tilt: f64) -> Option<usize> {
         .map(|(i, _)| i)
 }
 
+/// Moves the package, the cups and the object of `placement` by `offset` (m).
+fn shift(placement: &mut Placement, offset: [f32; 3]) {
+    let points = [
+        &mut placement.package_origin,
+        &mut placement.cup_point,
+        &mut placement.disc_position,
+    ];
+    for point in points.into_iter().chain(placement.disc_hold.as_mut()) {
+        for (c, d) in point.iter_mut().zip(offset) {
+            *c += d;
+        }
+    }
+}
+
 /// The package at pick on `path`, the tool held at its start pose.
 pub(super) fn base_spec(scene: &SceneConfig, path: &TransportPath) -> EpisodeSpec {
     let q = path.start_orientation;
@@ -200,11 +215,17 @@ impl Transport {
     pub fn try_reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
         self.settle_variants(seed)?;
         self.retired.fill(false);
+        if let Some(sensors) = &mut self.sensors {
+            sensors.reseed(seed);
+        }
         for env in 0..self.num_envs() {
             self.rngs[env] = env_rng(seed, env);
             self.start_episode(env)?;
         }
         self.read_simulator()?;
+        for env in 0..self.num_envs() {
+            self.start_sensors(env);
+        }
         out.rewards.iter_mut().for_each(|r| *r = 0.0);
         out.terminated.iter_mut().for_each(|t| *t = false);
         out.truncated.iter_mut().for_each(|t| *t = false);
@@ -250,22 +271,7 @@ impl Transport {
             let jitter = uniform_offset(&mut rng, r.start_jitter_m, true);
             let mut spec = base_spec(scene, path);
             spec = r.package.apply(&spec, &mut rng);
-            let j = jitter.as_vec3().to_array();
-            let pl = &mut spec.placement;
-            for (c, d) in pl.package_origin.iter_mut().zip(j) {
-                *c += d;
-            }
-            for (c, d) in pl.cup_point.iter_mut().zip(j) {
-                *c += d;
-            }
-            for (c, d) in pl.disc_position.iter_mut().zip(j) {
-                *c += d;
-            }
-            if let Some(hold) = &mut pl.disc_hold {
-                for (c, d) in hold.iter_mut().zip(j) {
-                    *c += d;
-                }
-            }
+            shift(&mut spec.placement, jitter.as_vec3().to_array());
             let start = path.points[0] + jitter;
             let q = path.start_orientation;
             spec.trajectory =
@@ -343,10 +349,9 @@ impl Transport {
             self.start_episode(env)?;
         }
         if !finished.is_empty() {
-            self.sim
-                .read_cup_loads(&mut self.loads)
-                .map_err(sim_error)?;
+            self.read_loads()?;
             for &env in finished {
+                self.start_sensors(env);
                 self.observe_into(env, out, false);
             }
         }

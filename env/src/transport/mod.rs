@@ -21,15 +21,17 @@
 //! replace the scene's `[tool_limits]`).
 //!
 //! # Observations
-//! The actor sees what a real cell measures ([`ACTOR_OBSERVATIONS`]); the critic additionally sees
-//! privileged simulator state ([`critic_only_observations`]). Every name comes with its unit.
+//! The actor sees [`ACTOR_OBSERVATIONS`] and, with `observation = "privileged"` (the default), the
+//! simulator's exact values and each cup's utilisation; with `observation = "sensors"`, only what
+//! a real cell measures, noisy and delayed (`sensors`: vacuum pressure per cup, wrist
+//! force-torque, tool pose and twist). The critic additionally sees privileged simulator state
+//! ([`critic_only_observations`]). Every name comes with its unit.
 //!
 //! # Reward, termination
 //! See [`RewardTerms`]; each term is also reported per step in [`crate::VecEnv::info`] (names in
 //! [`crate::VecEnv::info_names`]). Terminated on success (at the place pose within
 //! `[transport.success]`, object settled) or failure (a cup detached, the package dropped, or the
 //! simulator froze the copy as unhealthy); truncated at `time_limit_s`.
-
 //!
 //! # Modules
 //! - `config`: the `[transport]` table and the scene it names;
@@ -38,8 +40,9 @@
 //! - `episode`: settled variants, the draws of an episode, reset and episode ends;
 //! - `control`: action to reference to the tool's twist command, and the scripted baseline;
 //! - `observe`: observation names, the spec and the observation rows;
+//! - `sensors`: the cell's sensors (vacuum leak model, wrist wrench, noise, delay lines);
 //! - `reward`: failure, success, reward terms and the info row of a step;
-//! - `snapshot`: the saved state for checkpoints;
+//! - `snapshot`: the saved state for checkpoints (serde; the flat layout is read too);
 //! - `evaluate`: episode outcomes and traces for evaluation;
 //! - `geometry`: vector and rotation helpers.
 
@@ -52,6 +55,7 @@ mod observe;
 mod path;
 mod recordings;
 mod reward;
+mod sensors;
 mod snapshot;
 #[cfg(test)]
 mod test_support;
@@ -62,21 +66,28 @@ use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{CupLoad, EnvObservation, HealthEvent, Model, SceneConfig, SealEvent, Simulator};
 
 pub use config::{
-    load_scene, FailureLimits, RewardWeights, SuccessTolerances, TransportConfig, TransportLimits,
-    TransportRandomization, RECORDED_PEAK_ACCEL_M_S2, RECORDED_PEAK_ANGULAR_SPEED_RAD_S,
-    RECORDED_PEAK_SPEED_M_S,
+    load_scene, FailureLimits, ObservationMode, RewardWeights, SuccessTolerances, TransportConfig,
+    TransportLimits, TransportRandomization, RECORDED_PEAK_ACCEL_M_S2,
+    RECORDED_PEAK_ANGULAR_SPEED_RAD_S, RECORDED_PEAK_SPEED_M_S,
 };
 pub use episode::EpisodeConditions;
 pub use evaluate::{
     run_episodes, run_traced_episodes, Ending, EpisodeOutcome, OutcomeSummary, TracePoint,
 };
-pub use observe::{critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS};
+pub use observe::{
+    critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS, WRIST_OBSERVATIONS,
+};
 pub use path::TransportPath;
 pub use recordings::{load_paths, recorded_timings};
 pub use reward::{info_names, Failure, RewardTerms, StepOutcome, REWARD_TERM_NAMES};
+pub use sensors::{
+    cup_vacuum_pa, DelayLine, SensorConfig, SensorNoise, LEAK_LOAD, LEAK_OPEN, LEAK_PEELED,
+    LEAK_SEALED, MAX_DELAY_STEPS,
+};
 
 use crate::{env_rng, EnvError, EnvSpec, EnvState, StepBuffers, VecEnv};
 use episode::{Episode, Variant};
+use sensors::Sensors;
 
 /// The id the command line's task registry knows this environment by.
 pub const ID: &str = "Transport-v0";
@@ -102,6 +113,10 @@ pub struct Transport {
     rngs: Vec<ChaCha8Rng>,
     states: Vec<EnvObservation>,
     loads: Vec<CupLoad>,
+    /// Each cup's force on the tool (N, world; read only for a wrist force-torque sensor).
+    cup_forces: Vec<[f32; 3]>,
+    /// The cell's sensors (`observation = "sensors"`).
+    sensors: Option<Sensors>,
     health: Vec<HealthEvent>,
     seal: Vec<SealEvent>,
     info: Vec<f32>,
@@ -150,7 +165,16 @@ impl Transport {
         let substeps_per_step = (1.0 / config.control_hz / sim.dt() as f64).round().max(1.0) as u64;
         let dt = substeps_per_step as f64 * sim.dt() as f64;
         let info_names = info_names();
+        let sensors = match (&config.observation, &config.sensors) {
+            (ObservationMode::Sensors, Some(c)) => Some(Sensors::new(c.clone(), num_envs)),
+            _ => None,
+        };
+        let wrist = sensors
+            .as_ref()
+            .is_some_and(|s| s.config.wrist_force_torque);
         Ok(Self {
+            cup_forces: vec![[0.0; 3]; if wrist { num_envs * num_cups } else { 0 }],
+            sensors,
             info: vec![0.0; num_envs * info_names.len()],
             info_names,
             episodes: vec![Episode::default(); num_envs],
@@ -211,7 +235,20 @@ impl Transport {
     /// Reads every copy's state and cup loads from the simulator.
     fn read_simulator(&mut self) -> Result<(), EnvError> {
         self.sim.read_states(&mut self.states).map_err(sim_error)?;
-        self.sim.read_cup_loads(&mut self.loads).map_err(sim_error)
+        self.read_loads()
+    }
+
+    /// Reads every cup's load (and, for a wrist sensor, its force) from the simulator.
+    fn read_loads(&mut self) -> Result<(), EnvError> {
+        self.sim
+            .read_cup_loads(&mut self.loads)
+            .map_err(sim_error)?;
+        if !self.cup_forces.is_empty() {
+            self.sim
+                .read_cup_forces(&mut self.cup_forces)
+                .map_err(sim_error)?;
+        }
+        Ok(())
     }
 
     /// Simulates one control interval and collects its health and seal events, states and loads.
@@ -240,8 +277,22 @@ impl VecEnv for Transport {
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError> {
         self.check_actions(actions)?;
         let start_states = self.states.clone();
-        self.command_tools(actions)?;
+        match self.sensors.as_mut() {
+            Some(sensors) => {
+                // The robot executes the action the policy sent `d_act` steps ago.
+                let mut delayed = actions.to_vec();
+                for (env, row) in delayed.chunks_exact_mut(3).enumerate() {
+                    if !self.retired[env] {
+                        let applied = sensors.delay_action(env, row);
+                        row.copy_from_slice(&applied);
+                    }
+                }
+                self.command_tools(&delayed)?;
+            }
+            None => self.command_tools(actions)?,
+        }
         self.advance()?;
+        self.measure();
         let mut finished = Vec::new();
         for (env, start) in start_states.iter().enumerate() {
             if self.retired[env] {

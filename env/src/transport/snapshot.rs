@@ -8,6 +8,7 @@ use rlpkg_sim::EnvSnapshot;
 use serde::{Deserialize, Serialize};
 
 use super::episode::{Episode, Variant};
+use super::sensors::CopySensors;
 use super::{Transport, ID};
 use crate::{rng_from_words, rng_to_words, EnvError, EnvState, RNG_WORDS};
 
@@ -22,6 +23,9 @@ struct SavedTransport {
     copies: Vec<EnvSnapshot>,
     /// The settled variants episodes start from.
     variants: Vec<Variant>,
+    /// Each copy's sensors (`observation = "sensors"` only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sensors: Option<Vec<CopySensors>>,
 }
 
 /// Numbers per copy in the flat layout's reals.
@@ -114,6 +118,7 @@ impl SavedTransport {
             rngs,
             copies,
             variants,
+            sensors: None,
         })
     }
 }
@@ -128,6 +133,7 @@ impl Transport {
                 .map(|env| self.sim.snapshot(env))
                 .collect(),
             variants: self.variants.clone(),
+            sensors: self.sensors.as_ref().map(|s| s.copies.clone()),
         };
         EnvState {
             reals: Vec::new(),
@@ -166,6 +172,21 @@ impl Transport {
                 saved.variants.len()
             )));
         }
+        match (&mut self.sensors, saved.sensors) {
+            (None, None) => {}
+            (Some(sensors), Some(copies)) if copies.len() == n => sensors.copies = copies,
+            (ours, theirs) => {
+                return Err(mismatch(format!(
+                    "sensors: this environment {}, the saved state {}",
+                    if ours.is_some() {
+                        "has them"
+                    } else {
+                        "has none"
+                    },
+                    theirs.map_or("none".to_string(), |c| format!("{} copies", c.len()))
+                )))
+            }
+        }
         for (env, (episode, snapshot)) in saved.episodes.iter().zip(&saved.copies).enumerate() {
             if episode.path >= self.paths.len() || episode.variant >= saved.variants.len() {
                 return Err(mismatch(format!(
@@ -196,7 +217,7 @@ fn mismatch(reason: String) -> EnvError {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transport::test_support::{env, test_table};
+    use crate::transport::test_support::{env, sensors_table, test_table};
     use crate::VecEnv;
 
     /// `saved` in the flat layout [`SavedTransport::from_flat_layout`] reads.
@@ -234,8 +255,20 @@ mod tests {
 
     #[test]
     fn saved_state_continues_bit_identically() {
-        let text = test_table();
-        let mut t = env(&text, 2);
+        for text in [test_table(), sensors_table()] {
+            continues_bit_identically(&text);
+        }
+        // A state saved without sensors does not fit an environment with them.
+        let mut plain = env(&test_table(), 2);
+        let mut out = plain.buffers();
+        plain.try_reset(1, &mut out).unwrap();
+        assert!(env(&sensors_table(), 2)
+            .load_state(&plain.save_state())
+            .is_err());
+    }
+
+    fn continues_bit_identically(text: &str) {
+        let mut t = env(text, 2);
         let mut out = t.buffers();
         t.try_reset(11, &mut out).unwrap();
         let actions = [0.5f32, 0.1, -0.05, 0.3, -0.1, 0.0];
@@ -243,7 +276,7 @@ mod tests {
             t.step(&actions, &mut out).unwrap();
         }
         let saved = t.save_state();
-        let mut copy = env(&text, 2);
+        let mut copy = env(text, 2);
         copy.load_state(&saved).unwrap();
         let mut copy_out = out.clone();
         for _ in 0..4 {
@@ -252,7 +285,7 @@ mod tests {
             assert_eq!(out, copy_out);
             assert_eq!(t.info(), copy.info());
         }
-        let mut wrong_size = env(&text, 3);
+        let mut wrong_size = env(text, 3);
         assert!(wrong_size.load_state(&saved).is_err());
     }
 

@@ -97,3 +97,26 @@ pub(super) fn info(t: &Transport, env: usize, name: &str) -> f32 {
     let k = t.info_names().iter().position(|n| n == name).unwrap();
     t.info()[env * t.info_names().len() + k]
 }
+
+/// [`test_table`] with `observation = "sensors"`: noisy, delayed readings and a wrist sensor.
+pub(super) fn sensors_table() -> String {
+    test_table().replace(
+        "settle_s = 0.5\n",
+        "settle_s = 0.5\nobservation = \"sensors\"\n",
+    ) + r#"
+[transport.sensors]
+supply_vacuum_kpa = [20.0, 30.0]
+wrist_force_torque = true
+observation_delay_steps = [1, 2]
+action_delay_steps = [1, 2]
+
+[transport.sensors.noise]
+vacuum_pa = 200.0
+force_n = 0.1
+torque_n_m = 0.01
+position_m = 0.0005
+orientation_rad = 0.002
+velocity_m_s = 0.005
+angular_velocity_rad_s = 0.01
+"#
+}

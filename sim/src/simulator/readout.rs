@@ -131,6 +131,18 @@ impl Simulator {
         Ok(())
     }
 
+    /// Writes the force every cup's springs exert on the tool in every environment into `out` (N,
+    /// world frame, after the seal model's low-pass filter; what a wrist force sensor reads):
+    /// environment-major, one row of [`Simulator::num_cups`] entries per environment.
+    pub fn read_cup_forces(&self, out: &mut [[f32; 3]]) -> Result<(), SimError> {
+        let cups = self.num_cups();
+        self.check_len("read_cup_forces", out.len(), self.num_envs() * cups)?;
+        for (env, row) in out.chunks_mut(cups).enumerate() {
+            with_lane!(self, env, |b, l| b.read_cup_forces(l, row));
+        }
+        Ok(())
+    }
+
     /// Writes the world positions of `embedding`'s points in every environment into `out`:
     /// environment-major, one row of `embedding.points.len()` entries per environment.
     pub fn read_points(

@@ -32,6 +32,10 @@ pub struct EvalArgs {
     /// Evaluate this exported ONNX policy (through tract) instead of the run's burn checkpoint.
     #[arg(long, conflicts_with = "params")]
     pub policy: Option<PathBuf>,
+    /// With --policy: the training configuration of a task that takes settings (Transport-v0):
+    /// the file is evaluated on its task and printed as `rlpkg eval <run>` prints a run.
+    #[arg(long, requires = "policy")]
+    pub config: Option<PathBuf>,
     /// Number of deterministic evaluation episodes (one environment copy each).
     #[arg(long, default_value_t = 100, conflicts_with = "params",
           value_parser = clap::value_parser!(u64).range(1..))]
@@ -55,22 +59,26 @@ pub struct EvalArgs {
     /// Sensitivity: scale every parameter by these percentages, e.g. 10,20,30 (with --params).
     #[arg(long, value_delimiter = ',', requires = "params", conflicts_with_all = ["run", "policy"])]
     pub perturb: Vec<f64>,
+    /// Posterior draws replayed when --params is an `rlpkg posterior` summary.json or samples.csv
+    /// [default: 16].
+    #[arg(long, value_name = "N", requires = "params", conflicts_with_all = ["run", "policy"])]
+    pub draws: Option<usize>,
     /// Where to write pictures and the JSON summary (with --params).
     #[arg(long, requires = "params", conflicts_with_all = ["run", "policy"])]
     pub out: Option<PathBuf>,
-    /// Transport runs: time scales of the scripted baseline evaluated beside the policy (the
+    /// Transport policies: time scales of the scripted baseline evaluated beside the policy (the
     /// recorded high-velocity path played that many times as fast).
-    #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.25, 1.5], conflicts_with_all = ["params", "policy"])]
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.25, 1.5], conflicts_with = "params")]
     pub scripted: Vec<f64>,
-    /// Transport runs: velocity levels of the recorded baselines evaluated beside the policy (the
+    /// Transport policies: velocity levels of the recorded baselines evaluated beside the policy (the
     /// timing of the low, medium or high-velocity recording of the episode's tilt level, played
     /// along the episode's path); `none` for none.
     #[arg(long, value_delimiter = ',', default_values_t = ["low".to_string(), "medium".to_string(), "high".to_string()],
-          conflicts_with_all = ["params", "policy"])]
+          conflicts_with = "params")]
     pub recorded: Vec<String>,
-    /// Transport runs: also evaluate the policy on the own conditions of the recordings of this
+    /// Transport policies: also evaluate the policy on the own conditions of the recordings of this
     /// split (`test`: HHLMM, HHMMM, HHHMM; `train`; `all`), beside the recording's own timing.
-    #[arg(long, conflicts_with_all = ["params", "policy"])]
+    #[arg(long, conflicts_with = "params")]
     pub trajectories: Option<String>,
     /// Print a JSON summary on standard output.
     #[arg(long)]
@@ -84,6 +92,9 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     }
     if let Some(policy) = &args.policy {
         let episodes = episode_count(args.episodes)?;
+        if let Some(config) = &args.config {
+            return onnx::eval_onnx_with_config(policy, config, episodes, &args);
+        }
         let summary = onnx::eval_onnx_policy(policy, episodes, args.seed)?;
         return print_policy_summary(&summary, args.json, &|s| {
             format!(

@@ -1,5 +1,6 @@
-//! `rlpkg eval --policy <file.onnx>`: an exported policy run through tract in the environment its
-//! metadata names.
+//! `rlpkg eval --policy <file.onnx> [--config <training config>]`: an exported policy run through
+//! tract in the environment its metadata names (a task that takes settings, Transport-v0, gets
+//! them from its training configuration).
 
 use std::path::{Path, PathBuf};
 
@@ -9,8 +10,9 @@ use rlpkg_agents::export::{ExportError, OnnxPolicy};
 use rlpkg_agents::runners::evaluation_memory_bytes;
 use serde::Serialize;
 
-use crate::error::{export_error, input_error};
-use crate::tasks::Task;
+use super::EvalArgs;
+use crate::error::{agent_error, export_error, input_error};
+use crate::tasks::{Task, Training};
 
 /// Result of [`eval_onnx_policy`].
 #[derive(Debug, Serialize)]
@@ -55,6 +57,12 @@ pub fn eval_onnx_policy(
         evaluation_memory_bytes(episodes, policy.obs_dim(), 1024),
     )
     .map_err(input_error)?;
+    if env_id == rlpkg_env::transport::ID {
+        return Err(input_error(format!(
+            "{}: {env_id} takes settings: give its training configuration with --config <file.toml>",
+            path.display()
+        )));
+    }
     let mut env = Task::by_id(&env_id)
         .and_then(|task| task.build(episodes))
         .map_err(|e| given(e.into()))?;
@@ -68,6 +76,57 @@ pub fn eval_onnx_policy(
         std_return: stats.std_return(),
         mean_length: stats.lengths.iter().sum::<usize>() as f64 / episodes as f64,
     })
+}
+
+/// `rlpkg eval --policy <path> --config <config>`: the exported file at `path` evaluated on the
+/// task of the training configuration `config` (Transport-v0), printed as `rlpkg eval <run>`
+/// prints a run of that task. The file's observations (names and units, in order) must be the
+/// task's actor observations.
+pub fn eval_onnx_with_config(
+    path: &Path,
+    config: &Path,
+    episodes: usize,
+    args: &EvalArgs,
+) -> anyhow::Result<()> {
+    let policy = OnnxPolicy::load(path).map_err(|e| export_error(e, Some(path)))?;
+    let training = Training::load(config).map_err(agent_error)?;
+    let Task::Transport {
+        config: transport,
+        source,
+    } = &training.task
+    else {
+        return Err(input_error(format!(
+            "--config {}: expected a Transport-v0 training configuration (the other tasks need \
+             none: drop --config)",
+            config.display()
+        )));
+    };
+    let meta = policy.metadata();
+    let list = |key: &str| -> Vec<String> {
+        meta.get(key)
+            .and_then(|text| serde_json::from_str(text).ok())
+            .unwrap_or_default()
+    };
+    let observation = &training.spec.observation;
+    if meta.get("env_id") != Some(&training.spec.id)
+        || list("obs_names") != observation.names
+        || list("obs_units") != observation.units
+    {
+        return Err(input_error(format!(
+            "{}: its environment and observations (metadata `env_id`, `obs_names`, `obs_units`) \
+             are not those of --config {} ({}, {} observations)",
+            path.display(),
+            config.display(),
+            training.spec.id,
+            observation.dim()
+        )));
+    }
+    check_memory(
+        &format!("--episodes {episodes}"),
+        evaluation_memory_bytes(episodes, policy.obs_dim(), 1024),
+    )
+    .map_err(input_error)?;
+    super::transport::run_onnx(path, &policy, transport, source, episodes, args)
 }
 
 #[cfg(test)]

@@ -7,6 +7,8 @@
 //! over the package (`<id>_marker_error.png`, Fig. 10) and the loss over time (`<id>_loss.png`).
 //! `--sweep-grid` adds Table 2 (grid, particles, real-time factor, CD, MSE) and `--perturb 10,20`
 //! the sensitivity table (every calibrated value scaled up by that percentage, as the study did).
+//! A posterior (`summary.json` or `samples.csv` of `rlpkg posterior`) instead gives the
+//! posterior-predictive Table 1 ([`crate::cmd::posterior::predictive`]).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -22,7 +24,8 @@ use rlpkg_replay::{
 use rlpkg_sim::{Model, SceneConfig};
 use serde::Serialize;
 
-use crate::error::input_error;
+use crate::cmd::posterior::predictive::PredictiveArgs;
+use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 use crate::render::plot::{write_loss_plot, write_marker_error_plot};
 use crate::render::{self, Bounds, Disc, Frame, View};
@@ -77,6 +80,9 @@ struct PerturbRow {
     object_mse_mean_m2: f64,
 }
 
+/// Posterior draws replayed by default for a posterior `--params`.
+const DEFAULT_DRAWS: usize = 16;
+
 /// Upper bound of the number of `--perturb` percentages.
 const MAX_PERTURBATIONS: usize = 20;
 
@@ -86,6 +92,29 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
         .params
         .as_ref()
         .ok_or_else(|| input_error("--params: expected a scene TOML file"))?;
+    if let Some(extension @ ("json" | "csv")) = params_path.extension().and_then(|e| e.to_str()) {
+        if args.sweep_grid || !args.perturb.is_empty() {
+            return Err(input_error(format!(
+                "--params {}: a posterior ({extension}) takes neither --sweep-grid nor --perturb; \
+                 give a scene TOML file for those",
+                params_path.display()
+            )));
+        }
+        return crate::cmd::posterior::predictive::run(&PredictiveArgs {
+            posterior: params_path,
+            draws: args.draws.unwrap_or(DEFAULT_DRAWS),
+            split: args.split.as_deref().unwrap_or("test"),
+            data: args.data.as_deref(),
+            out: args.out.as_deref(),
+            json: args.json,
+        });
+    }
+    if args.draws.is_some() {
+        return Err(input_error(format!(
+            "--draws: only with a posterior (--params <summary.json or samples.csv>), not with {}",
+            params_path.display()
+        )));
+    }
     let scene = SceneConfig::load(params_path).map_err(input_error)?;
     // A signal stops the rollouts; the pictures and summary.json are written whole or not at all.
     let _cooperation = crate::interrupt::Cooperation::start();
@@ -231,7 +260,7 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
         perturb,
     };
     let json = serde_json::to_string_pretty(&summary)?;
-    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(input_error)?;
+    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(output_error)?;
     if args.json {
         println!("{json}");
     } else {

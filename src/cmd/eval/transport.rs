@@ -1,10 +1,13 @@
-//! `rlpkg eval runs/<transport run>`: the trained policy and the scripted baseline (the recorded
-//! high-velocity path, time-scaled) over the same seeded, randomised episodes, side by side.
+//! `rlpkg eval runs/<transport run>` and `rlpkg eval --policy <file.onnx> --config <file.toml>`:
+//! the trained policy (the run's checkpoint, or the exported file through tract) and the scripted
+//! baseline (the recorded high-velocity path, time-scaled) over the same seeded, randomised
+//! episodes, side by side.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
+use rlpkg_agents::export::OnnxPolicy;
 use rlpkg_agents::TrainedPolicy;
 use rlpkg_env::transport::{
     load_paths, load_scene, recorded_timings, run_traced_episodes, OutcomeSummary, TracePoint,
@@ -18,12 +21,14 @@ use super::EvalArgs;
 use crate::error::input_error;
 use crate::render::plot::write_transport_plot;
 
-/// What `rlpkg eval` prints for a transport run.
+/// What `rlpkg eval` prints for a transport policy.
 #[derive(Serialize)]
 struct TransportReport {
+    /// The run folder or the ONNX file evaluated.
     run: String,
-    update: usize,
-    global_step: u64,
+    /// The checkpoint's update and environment steps (none for an exported file).
+    update: Option<usize>,
+    global_step: Option<u64>,
     seed: u64,
     /// Recorded baselines: velocity level, and for each path the recording whose timing it plays.
     recorded: Vec<RecordedBaseline>,
@@ -42,14 +47,73 @@ struct RecordedBaseline {
     timings: Vec<(String, String)>,
 }
 
+/// Deterministic actions for `n` rows of observations.
+type Act<'a> = dyn Fn(&[f32], usize) -> anyhow::Result<Vec<f32>> + 'a;
+
+/// The policy a transport evaluation drives with.
+struct Driver<'a> {
+    /// What is evaluated (run folder or ONNX file), as printed.
+    name: String,
+    /// The checkpoint's update and environment steps (a run folder).
+    checkpoint: Option<(usize, u64)>,
+    /// Deterministic actions for `n` rows of observations.
+    act: Box<Act<'a>>,
+    /// Where plots, the animation and `summary.json` go.
+    out: PathBuf,
+}
+
 /// Evaluates `policy` (read from `run`, trained on the task `transport` describes; `source` is the
-/// run's configuration file), the scripted baseline at each time scale of `args.scripted` and the
-/// recorded baseline of each velocity level in `args.recorded` over `episodes` randomised episodes
-/// from `args.seed` (and `args.trajectories`' recordings); prints the table (or JSON), writes
-/// plots, an animation and `summary.json` to `run/eval/`.
+/// run's configuration file) beside the baselines (see [`evaluate`]); writes to `run/eval/`.
 pub fn run(
     run: &Path,
     policy: &TrainedPolicy,
+    transport: &TransportConfig,
+    source: &str,
+    episodes: usize,
+    args: &EvalArgs,
+) -> anyhow::Result<()> {
+    policy
+        .check_evaluation_memory(episodes)
+        .map_err(input_error)?;
+    let driver = Driver {
+        name: run.display().to_string(),
+        checkpoint: Some((policy.update, policy.global_step)),
+        act: Box::new(|obs, n| Ok(policy.act(obs, n))),
+        out: run.join("eval"),
+    };
+    evaluate(&driver, transport, source, episodes, args)
+}
+
+/// Evaluates the exported file `policy` (at `path`) on the task `transport` describes (`source`
+/// is its configuration file) beside the baselines, exactly as [`run`] does a run's checkpoint;
+/// writes to `<file stem>-eval/` beside the file.
+pub fn run_onnx(
+    path: &Path,
+    policy: &OnnxPolicy,
+    transport: &TransportConfig,
+    source: &str,
+    episodes: usize,
+    args: &EvalArgs,
+) -> anyhow::Result<()> {
+    let stem = path
+        .file_stem()
+        .map_or("policy".into(), |s| s.to_string_lossy().into_owned());
+    let driver = Driver {
+        name: path.display().to_string(),
+        checkpoint: None,
+        act: Box::new(|obs, n| Ok(policy.act(obs, n)?)),
+        out: path.with_file_name(format!("{stem}-eval")),
+    };
+    evaluate(&driver, transport, source, episodes, args)
+}
+
+/// Evaluates `driver`'s policy, the scripted baseline at each time scale of `args.scripted` and
+/// the recorded baseline of each velocity level in `args.recorded` over `episodes` randomised
+/// episodes from `args.seed` (and `args.trajectories`' recordings) of the task `transport`
+/// describes; prints the table (or JSON), writes plots, an animation and `summary.json` to
+/// `driver.out`.
+fn evaluate(
+    driver: &Driver,
     transport: &TransportConfig,
     source: &str,
     episodes: usize,
@@ -79,9 +143,7 @@ pub fn run(
     // A signal stops the episodes at the next control step; the plots, the GIF and summary.json
     // are written whole or not at all.
     let _cooperation = crate::interrupt::Cooperation::start();
-    policy
-        .check_evaluation_memory(episodes)
-        .map_err(input_error)?;
+    let act = &driver.act;
     let make = || Transport::new(transport.clone(), episodes, source);
     let held_out = match args.trajectories.as_deref() {
         Some(split) => Some(held_out_configs(transport, split, source)?),
@@ -94,7 +156,7 @@ pub fn run(
     let (outcomes, mut traces) =
         run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |_, obs| {
             crate::interrupt::check()?;
-            Ok(policy.act(obs, episodes))
+            act(obs, episodes)
         })?;
     rows.push(OutcomeSummary::of("policy", &outcomes));
     first_episode.push(("policy".into(), traces.remove(0)));
@@ -134,7 +196,7 @@ pub fn run(
                 .collect(),
         });
     }
-    let out = run.join("eval");
+    let out = driver.out.clone();
     std::fs::create_dir_all(&out)
         .map_err(|e| input_error(format!("{}: cannot create: {e}", out.display())))?;
     let mut plots = Vec::new();
@@ -147,14 +209,7 @@ pub fn run(
     plots.push(plot.display().to_string());
     let medium = recorded_timings(transport, "medium", source).map_err(input_error)?;
     let (animation, still) = (out.join("episode-0.gif"), out.join("episode-0-end.png"));
-    render_beside_medium(
-        (&animation, &still),
-        transport,
-        source,
-        &medium,
-        seed,
-        policy,
-    )?;
+    render_beside_medium((&animation, &still), transport, source, &medium, seed, act)?;
     plots.extend([&animation, &still].map(|p| p.display().to_string()));
     let mut trajectory_rows = Vec::new();
     for (id, held) in held_out.into_iter().flatten() {
@@ -163,7 +218,7 @@ pub fn run(
         let (outcomes, mut traces) =
             run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |_, obs| {
                 crate::interrupt::check()?;
-                Ok(policy.act(obs, 1))
+                act(obs, 1)
             })?;
         trajectory_rows.push(OutcomeSummary::of(&format!("{id} policy"), &outcomes));
         drivers.push(("policy".to_string(), traces.remove(0)));
@@ -179,19 +234,23 @@ pub fn run(
         plots.push(plot.display().to_string());
     }
     let report = TransportReport {
-        run: run.display().to_string(),
-        update: policy.update,
-        global_step: policy.global_step,
+        run: driver.name.clone(),
+        update: driver.checkpoint.map(|c| c.0),
+        global_step: driver.checkpoint.map(|c| c.1),
         seed,
         recorded: baselines,
         rows,
         trajectories: trajectory_rows,
         plots,
     };
+    let trained = match driver.checkpoint {
+        Some((update, steps)) => format!("update {update}, {steps} steps"),
+        None => "exported policy, through tract".to_string(),
+    };
     let mut text = format!(
-        "{} (update {}, {} steps): {} randomised episodes from seed {} per driver; \
+        "{} ({trained}): {} randomised episodes from seed {} per driver; \
          scripted xS = the recorded high-velocity path played S times as fast\n",
-        report.run, report.update, report.global_step, episodes, seed
+        report.run, episodes, seed
     );
     for b in &report.recorded {
         let pairs: Vec<String> = b
@@ -324,13 +383,13 @@ fn render_beside_medium(
     source: &str,
     medium: &[TransportPath],
     seed: u64,
-    policy: &TrainedPolicy,
+    act: &Act,
 ) -> anyhow::Result<()> {
     use crate::render::{write_png_side_by_side, Bounds, Disc, Frame, GifWriter, View};
     let mut env = Transport::new(transport.clone(), 1, source).map_err(input_error)?;
     let by_policy = play::<anyhow::Error>(&mut env, seed, |_, obs| {
         crate::interrupt::check()?;
-        Ok(policy.act(obs, 1))
+        act(obs, 1)
     })?;
     let mut slow = transport.clone();
     slow.time_limit_s = slow.time_limit_s.max(longest_timing_s(medium) * 1.25);

@@ -263,6 +263,13 @@ impl<const W: usize> EnvBlock<W> {
         }
     }
 
+    /// The filtered force of every cup of lane `l` (N, world), written to `out` (one per cup).
+    pub(crate) fn read_cup_forces(&self, l: usize, out: &mut [[f32; 3]]) {
+        for (cup, slot) in self.state.cups.iter().zip(out.iter_mut()) {
+            *slot = get3(&cup.load, l);
+        }
+    }
+
     /// The loads of every cup of lane `l`, written to `out` (one entry per cup).
     pub(crate) fn read_cup_loads(&self, l: usize, k: &StepConstants, out: &mut [CupLoad]) {
         let tool = self.tool_state(l, k, 0.0);

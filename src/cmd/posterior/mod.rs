@@ -1,0 +1,264 @@
+//! `rlpkg posterior <config.toml>`: an approximate posterior over a calibration's parameters from
+//! its `evaluations.csv` (crate `rlpkg-calib`, module `posterior`), without new simulations.
+//!
+//! Writes `samples.csv` (one row per draw, SI values), `summary.json` (the calibration config it
+//! came from; per parameter: median, 90 % interval, profile, identified; the threshold, the
+//! sampler's figures) and `profiles.csv` (the surrogate loss along each parameter), and prints the
+//! identifiability table.
+//!
+//! - [`predictive`]: `rlpkg eval --params <summary.json or samples.csv>`, the posterior-predictive
+//!   Table 1;
+//! - [`recover`]: `rlpkg posterior CONFIG --recover K`, the parameter-recovery table.
+
+pub mod predictive;
+mod recover;
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use rlpkg_calib::config::CalibrateConfig;
+use rlpkg_calib::objective::load_scene;
+use rlpkg_calib::posterior::{
+    self, Posterior, PosteriorError, PosteriorSettings, PosteriorSummary, Threshold,
+};
+use rlpkg_sim::SceneConfig;
+use serde::Serialize;
+
+use crate::error::{input_error, output_error};
+use crate::files::write_atomic;
+
+/// Arguments of `rlpkg posterior`.
+#[derive(Args, Debug)]
+pub struct PosteriorArgs {
+    /// Calibration config (TOML) whose parameter box is the prior, e.g. configs/calibrate/soft-film.toml.
+    pub config: PathBuf,
+    /// Calibration folder holding `evaluations.csv` [default: the config's `out_dir`].
+    #[arg(long, value_name = "DIR")]
+    pub from: Option<PathBuf>,
+    /// Output folder [default: `posterior` in the calibration folder].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Seed of the surrogate fit and the sampler.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Posterior draws to write.
+    #[arg(long, value_name = "N", default_value_t = 4000,
+          value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub samples: u64,
+    /// Likelihood threshold: this quantile of the finite losses in the log.
+    #[arg(
+        long,
+        value_name = "Q",
+        default_value_t = 0.1,
+        conflicts_with = "epsilon_loss"
+    )]
+    pub epsilon_quantile: f64,
+    /// Likelihood threshold as a loss instead (e.g. 1.1 x the best loss).
+    #[arg(long, value_name = "LOSS")]
+    pub epsilon_loss: Option<f64>,
+    /// Sampler steps discarded at the start.
+    #[arg(long, value_name = "N", default_value_t = 1000)]
+    pub burn_in: usize,
+    /// Keep every N-th sampler step.
+    #[arg(long, value_name = "N", default_value_t = 10,
+          value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    pub thin: u64,
+    /// Parameter recovery instead: calibrate synthetic recordings of K known parameter sets
+    /// (drawn from the middle of the box) back with the config's optimiser and report how the
+    /// posterior recovers them; writes to `<out_dir>/recovery` unless --out is given.
+    #[arg(long, value_name = "K", conflicts_with = "from",
+          value_parser = clap::value_parser!(u64).range(1..=100))]
+    pub recover: Option<u64>,
+    /// Recovery: synthesise only these recorded trajectories, comma-separated [default: the
+    /// config's list or the train split].
+    #[arg(long, value_delimiter = ',', value_name = "IDS", requires = "recover")]
+    pub trajectories: Vec<String>,
+    /// Recovery: compare only the first S seconds [default: the config's `sim.max_seconds`].
+    #[arg(long, value_name = "S", requires = "recover")]
+    pub max_seconds: Option<f64>,
+    /// Recovery: batches after the initial design [default: the config's `optimiser.iterations`].
+    #[arg(long, value_name = "N", requires = "recover",
+          value_parser = clap::value_parser!(u64).range(1..=100_000))]
+    pub iterations: Option<u64>,
+}
+
+/// `summary.json`: the calibration config and folder the posterior came from (what `eval --params`
+/// needs to rebuild the scene), then the posterior's summary.
+#[derive(Serialize)]
+struct SummaryFile<'a> {
+    config: &'a Path,
+    calibration: &'a Path,
+    #[serde(flatten)]
+    summary: &'a PosteriorSummary,
+}
+
+/// The scene a calibration config calibrates: its preset with the grid, step and disc-holding
+/// overrides, as `rlpkg calibrate` builds it.
+pub fn calibration_scene(config: &CalibrateConfig, path: &Path) -> anyhow::Result<SceneConfig> {
+    let mut scene = load_scene(&config.sim.preset, Some(config.sim.between), config.sim.dt)
+        .map_err(|e| input_error(format!("{} (sim.preset of {})", e, path.display())))?;
+    if let Some(hold) = config.sim.hold_disc {
+        scene.disc.hold_at_recorded_start = hold;
+    }
+    if let Some(hold) = config.sim.hold_orientation {
+        scene.disc.hold_orientation = hold;
+    }
+    Ok(scene)
+}
+
+/// The files `rlpkg posterior` writes into its output folder.
+const OUTPUT_FILES: [&str; 3] = ["samples.csv", "summary.json", "profiles.csv"];
+
+/// Runs `rlpkg posterior`.
+pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
+    let config = CalibrateConfig::load(&args.config).map_err(input_error)?;
+    let threshold = threshold(&args)?;
+    let space = config.space();
+    let settings = PosteriorSettings {
+        threshold,
+        draws: args.samples as usize,
+        burn_in: args.burn_in,
+        thin: args.thin as usize,
+        seed: args.seed,
+        ..PosteriorSettings::default()
+    };
+    if let Some(truths) = args.recover {
+        return recover::run(&args, config, truths as usize, settings);
+    }
+    let calibration = args.from.clone().unwrap_or(config.out_dir.clone());
+    let log_path = calibration.join("evaluations.csv");
+    let evaluations = posterior::read_evaluations(&log_path, &space)
+        .map_err(|e| input_error(format!("{e} (parameters of {})", args.config.display())))?;
+    let result = posterior::infer(&space, &evaluations, &settings).map_err(|e| match e {
+        PosteriorError::TooFew { .. } | PosteriorError::Setting(_) => {
+            input_error(format!("{}: {e}", log_path.display()))
+        }
+        other => anyhow::Error::new(other),
+    })?;
+
+    let out = args.out.clone().unwrap_or(calibration.join("posterior"));
+    std::fs::create_dir_all(&out).map_err(|e| {
+        input_error(format!(
+            "{}: cannot create the output folder: {e}",
+            out.display()
+        ))
+    })?;
+    let summary = serde_json::to_string_pretty(&SummaryFile {
+        config: &args.config,
+        calibration: &calibration,
+        summary: &result.summary,
+    })?;
+    for (file, text) in OUTPUT_FILES.iter().zip([
+        posterior::samples_csv(&space, &result.draws),
+        summary,
+        posterior::profiles_csv(&result.profiles),
+    ]) {
+        write_atomic(&out.join(file), text.as_bytes()).map_err(output_error)?;
+    }
+    print_table(&result, &log_path, &out);
+    Ok(())
+}
+
+/// The threshold from `--epsilon-quantile` or `--epsilon-loss`, range-checked.
+fn threshold(args: &PosteriorArgs) -> anyhow::Result<Threshold> {
+    if let Some(loss) = args.epsilon_loss {
+        if !(loss > 0.0 && loss.is_finite()) {
+            return Err(input_error(format!(
+                "--epsilon-loss {loss}: expected a finite loss > 0"
+            )));
+        }
+        return Ok(Threshold::Loss(loss));
+    }
+    let q = args.epsilon_quantile;
+    if !(q > 0.0 && q < 1.0) {
+        return Err(input_error(format!(
+            "--epsilon-quantile {q}: expected a quantile in (0, 1)"
+        )));
+    }
+    Ok(Threshold::Quantile(q))
+}
+
+fn print_table(result: &Posterior, log_path: &Path, out: &Path) {
+    let s = &result.summary;
+    println!(
+        "posterior of {} parameter(s) from {} evaluations ({} failed) in {}",
+        s.parameters.len(),
+        s.evaluations,
+        s.failed,
+        log_path.display()
+    );
+    println!(
+        "likelihood threshold: loss {:.4e} ({}; best loss {:.4e}); surrogate noise std {:.3} in ln(loss)",
+        s.epsilon_loss, s.epsilon_rule, s.best_loss, s.noise_std_ln_loss
+    );
+    println!(
+        "{} draws of {} walkers (burn-in {}, thin {}), acceptance {:.2}, seed {}",
+        s.draws, s.walkers, s.burn_in, s.thin, s.acceptance, s.seed
+    );
+    if s.acceptance < 0.1 {
+        println!("warning: low acceptance; a longer --burn-in or a larger --thin gives better-mixed draws");
+    }
+    println!();
+    println!(
+        "{:<16} {:<6} {:>10} {:>10}  {:<23} {:>13} {:>6} {:>9} {:>9}  identified",
+        "parameter",
+        "scale",
+        "best",
+        "median",
+        "90 % interval",
+        "width",
+        "range",
+        "profile",
+        "curvature"
+    );
+    for p in &s.parameters {
+        let width = match p.interval_decades {
+            Some(decades) => format!("{decades:.2} decades"),
+            None => format!("{:.3e}", p.interval[1] - p.interval[0]),
+        };
+        println!(
+            "{:<16} {:<6} {:>10.3e} {:>10.3e}  [{:>9.3e}, {:>9.3e}] {:>13} {:>5.0}% {:>8.3}x {:>9.3}  {}",
+            p.name,
+            if p.log { "log" } else { "linear" },
+            p.best,
+            p.median,
+            p.interval[0],
+            p.interval[1],
+            width,
+            100.0 * p.prior_fraction,
+            p.profile_ratio,
+            p.profile_curvature,
+            if p.identified { "yes" } else { "no" }
+        );
+    }
+    println!();
+    println!("{}", posterior::IDENTIFIED_RULE);
+    println!(
+        "range: share of the search range the interval covers; profile: highest / lowest surrogate \
+         loss along the parameter; curvature: of ln(loss) at the profile's lowest point, per decade^2 \
+         (log) or per search range^2 (linear)"
+    );
+    println!();
+    println!("loss profiles (surrogate loss / its lowest value, lower bound to upper bound, every other grid value; log-spaced for log parameters):");
+    for profile in &result.profiles {
+        let lowest = profile
+            .surrogate_loss
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        let cells: Vec<String> = profile
+            .surrogate_loss
+            .iter()
+            .step_by(2)
+            .map(|l| {
+                if l.is_finite() {
+                    format!("{:>5.2}", l / lowest)
+                } else {
+                    "  inf".to_string()
+                }
+            })
+            .collect();
+        println!("{:<16} {}", profile.name, cells.join(" "));
+    }
+    println!("wrote {}/{{{}}}", out.display(), OUTPUT_FILES.join(", "));
+}

@@ -1,0 +1,367 @@
+//! `rlpkg eval --params <posterior summary.json or samples.csv>`: the posterior-predictive Table 1.
+//!
+//! The same Table 1 as `eval --params <scene.toml>`, computed for `--draws` posterior draws (evenly
+//! spaced through `samples.csv`) in one batched replay of the whole recordings (draws x
+//! trajectories environments), and reported per column as the median and the 90 % band (5 % and
+//! 95 % quantiles) over the draws. A draw that diverges on a trajectory is counted and left out of
+//! the bands: its Table 1 would only cover the frames before the divergence.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use rlpkg_calib::config::CalibrateConfig;
+use rlpkg_mocap::{Dataset, Split};
+use rlpkg_replay::loss::{Table1Row, TrajectoryLoss};
+use rlpkg_replay::{rollout, set_param, Candidate, Observer, Target};
+use rlpkg_sim::Model;
+use serde::Serialize;
+
+use super::calibration_scene;
+use crate::error::{input_error, output_error};
+use crate::files::write_atomic;
+
+/// The file of a posterior folder that records which calibration it came from.
+pub const SUMMARY_FILE: &str = "summary.json";
+/// The posterior's draws.
+pub const SAMPLES_FILE: &str = "samples.csv";
+
+/// Largest `--draws`: each draw replays every selected trajectory.
+const MAX_DRAWS: usize = 256;
+
+/// What `eval --params` needs of its arguments for a posterior.
+pub struct PredictiveArgs<'a> {
+    /// `summary.json` or `samples.csv` of an `rlpkg posterior` folder.
+    pub posterior: &'a Path,
+    /// Draws to replay.
+    pub draws: usize,
+    /// `train`, `test` or `all`.
+    pub split: &'a str,
+    /// Dataset folder [default: the calibration config's `data`].
+    pub data: Option<&'a Path>,
+    /// Output folder.
+    pub out: Option<&'a Path>,
+    /// Print JSON instead of the table.
+    pub json: bool,
+}
+
+/// Median and 90 % band of one Table 1 column over the draws.
+#[derive(Debug, Clone, Copy, Serialize)]
+struct Band {
+    median: f64,
+    low: f64,
+    high: f64,
+}
+
+impl Band {
+    fn of(mut values: Vec<f64>) -> Self {
+        values.sort_by(f64::total_cmp);
+        if values.is_empty() {
+            return Self {
+                median: f64::NAN,
+                low: f64::NAN,
+                high: f64::NAN,
+            };
+        }
+        let q = |q: f64| {
+            let position = q * (values.len() - 1) as f64;
+            let below = position.floor() as usize;
+            let above = (below + 1).min(values.len() - 1);
+            values[below] + (position - below as f64) * (values[above] - values[below])
+        };
+        Self {
+            median: q(0.5),
+            low: q(0.05),
+            high: q(0.95),
+        }
+    }
+}
+
+/// The predictive Table 1 row of one split.
+#[derive(Debug, Serialize)]
+struct PredictiveRow {
+    split: String,
+    trajectories: usize,
+    /// Draws in the bands (those that diverged on no trajectory of the split).
+    draws: usize,
+    diverged_draws: usize,
+    chamfer_mean_m: Band,
+    chamfer_max_m: Band,
+    chamfer_std_m: Band,
+    object_mse_mean_m2: Band,
+    object_mse_max_m2: Band,
+    object_mse_std_m2: Band,
+}
+
+#[derive(Serialize)]
+struct PredictiveSummary {
+    posterior: PathBuf,
+    config: PathBuf,
+    /// Indices (rows of `samples.csv`, from 0) of the replayed draws.
+    draw_rows: Vec<usize>,
+    table1: Vec<PredictiveRow>,
+    /// Per draw, its Table 1 (one row per split).
+    per_draw: Vec<Vec<Table1Row>>,
+}
+
+/// Runs the posterior-predictive evaluation.
+pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
+    if args.draws == 0 || args.draws > MAX_DRAWS {
+        return Err(input_error(format!(
+            "--draws {}: expected 1 to {MAX_DRAWS} posterior draws",
+            args.draws
+        )));
+    }
+    let (summary_path, samples_path) = posterior_files(args.posterior)?;
+    let config_path = recorded_config(&summary_path)?;
+    let config = CalibrateConfig::load(&config_path).map_err(|e| {
+        input_error(format!(
+            "{e} (the calibration config named in {})",
+            summary_path.display()
+        ))
+    })?;
+    let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
+    let samples = read_samples(&samples_path, &names)?;
+    if samples.len() < args.draws {
+        return Err(input_error(format!(
+            "{}: {} draws; expected at least --draws {}",
+            samples_path.display(),
+            samples.len(),
+            args.draws
+        )));
+    }
+    let rows: Vec<usize> = (0..args.draws)
+        .map(|i| i * samples.len() / args.draws)
+        .collect();
+    let scene = calibration_scene(&config, &config_path)?;
+    let base = Candidate::of_scene(&scene);
+    let candidates = rows
+        .iter()
+        .map(|&row| {
+            let mut candidate = base;
+            for (name, &value) in names.iter().zip(&samples[row]) {
+                set_param(&mut candidate, name, value).map_err(input_error)?;
+            }
+            Ok(candidate)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+
+    let splits: Vec<Split> = match args.split {
+        "train" => vec![Split::Train],
+        "test" => vec![Split::Test],
+        "all" => vec![Split::Train, Split::Test],
+        other => {
+            return Err(input_error(format!(
+                "--split {other}: expected train, test or all"
+            )))
+        }
+    };
+    let data = args.data.unwrap_or(&config.data);
+    let dataset = Dataset::open(data).map_err(input_error)?;
+    let mut selected: Vec<(Split, Target)> = Vec::new();
+    for &split in &splits {
+        for id in dataset.ids(Some(split)) {
+            let trajectory = dataset.load(&id).map_err(input_error)?;
+            let target = Target::new(&trajectory, None, scene.disc.hold_at_recorded_start)
+                .map_err(input_error)?;
+            selected.push((split, target));
+        }
+    }
+    if selected.is_empty() {
+        return Err(input_error(format!(
+            "{}: no trajectory in split {}",
+            data.display(),
+            args.split
+        )));
+    }
+    let out = args.out.map(Path::to_path_buf).unwrap_or_else(|| {
+        summary_path
+            .parent()
+            .unwrap_or(Path::new("."))
+            .join(format!("eval-{}", args.split))
+    });
+    std::fs::create_dir_all(&out).map_err(|e| {
+        input_error(format!(
+            "{}: cannot create the output folder: {e}",
+            out.display()
+        ))
+    })?;
+
+    let targets: Vec<Target> = selected.iter().map(|(_, t)| t.clone()).collect();
+    let model = Arc::new(Model::new(&scene).map_err(input_error)?);
+    let _cooperation = crate::interrupt::Cooperation::start();
+    let outcomes = rollout(&model, &targets, &candidates, &mut Interruptible)?;
+
+    let per_draw: Vec<Vec<Table1Row>> = outcomes
+        .iter()
+        .map(|o| {
+            splits
+                .iter()
+                .map(|&split| {
+                    let losses: Vec<TrajectoryLoss> = selected
+                        .iter()
+                        .zip(o)
+                        .filter(|((s, _), _)| *s == split)
+                        .map(|(_, o)| o.loss.clone())
+                        .collect();
+                    Table1Row::from_losses(split_name(split), &losses)
+                })
+                .collect()
+        })
+        .collect();
+    let table1 = splits
+        .iter()
+        .enumerate()
+        .map(|(row, &split)| {
+            let healthy: Vec<&Table1Row> = outcomes
+                .iter()
+                .zip(&per_draw)
+                .filter(|(o, _)| {
+                    selected
+                        .iter()
+                        .zip(o.iter())
+                        .all(|((s, _), o)| *s != split || o.diverged.is_none())
+                })
+                .map(|(_, t)| &t[row])
+                .collect();
+            let band =
+                |f: &dyn Fn(&Table1Row) -> f64| Band::of(healthy.iter().map(|r| f(r)).collect());
+            PredictiveRow {
+                split: split_name(split).into(),
+                trajectories: per_draw[0][row].trajectories,
+                draws: healthy.len(),
+                diverged_draws: outcomes.len() - healthy.len(),
+                chamfer_mean_m: band(&|r| r.chamfer_m.mean),
+                chamfer_max_m: band(&|r| r.chamfer_m.max),
+                chamfer_std_m: band(&|r| r.chamfer_m.std),
+                object_mse_mean_m2: band(&|r| r.object_mse_m2.mean),
+                object_mse_max_m2: band(&|r| r.object_mse_m2.max),
+                object_mse_std_m2: band(&|r| r.object_mse_m2.std),
+            }
+        })
+        .collect();
+    let summary = PredictiveSummary {
+        posterior: samples_path.clone(),
+        config: config_path,
+        draw_rows: rows,
+        table1,
+        per_draw,
+    };
+    let json = serde_json::to_string_pretty(&summary)?;
+    write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(output_error)?;
+    if args.json {
+        println!("{json}");
+    } else {
+        print_table(&summary, &out);
+    }
+    Ok(())
+}
+
+/// `summary.json` and `samples.csv` of the posterior folder `given` names (either file).
+fn posterior_files(given: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
+    let folder = given.parent().unwrap_or(Path::new("."));
+    let pair = (folder.join(SUMMARY_FILE), folder.join(SAMPLES_FILE));
+    for path in [&pair.0, &pair.1] {
+        if !path.is_file() {
+            return Err(input_error(format!(
+                "{}: not found; --params {} needs the {SUMMARY_FILE} and {SAMPLES_FILE} that \
+                 `rlpkg posterior` writes side by side",
+                path.display(),
+                given.display()
+            )));
+        }
+    }
+    Ok(pair)
+}
+
+/// The calibration config a posterior summary records (`config`).
+fn recorded_config(summary: &Path) -> anyhow::Result<PathBuf> {
+    let text = std::fs::read_to_string(summary)
+        .map_err(|e| input_error(format!("{}: {e}", summary.display())))?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| input_error(format!("{}: not JSON: {e}", summary.display())))?;
+    value["config"].as_str().map(PathBuf::from).ok_or_else(|| {
+        input_error(format!(
+            "{}: no `config` (the calibration config path `rlpkg posterior` records)",
+            summary.display()
+        ))
+    })
+}
+
+/// The rows of `samples.csv`, whose header must name `names` in order.
+pub fn read_samples(path: &Path, names: &[String]) -> anyhow::Result<Vec<Vec<f64>>> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| input_error(format!("{}: {e}", path.display())))?;
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or("");
+    if header != names.join(",") {
+        return Err(input_error(format!(
+            "{}: header `{header}`; expected the calibration's parameters `{}`",
+            path.display(),
+            names.join(",")
+        )));
+    }
+    lines
+        .enumerate()
+        .map(|(i, line)| {
+            let values: Vec<f64> = line
+                .split(',')
+                .map(|c| c.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|e| input_error(format!("{}: line {}: {e}", path.display(), i + 2)))?;
+            if values.len() != names.len() || values.iter().any(|v| !v.is_finite()) {
+                return Err(input_error(format!(
+                    "{}: line {}: expected {} finite values",
+                    path.display(),
+                    i + 2,
+                    names.len()
+                )));
+            }
+            Ok(values)
+        })
+        .collect()
+}
+
+fn split_name(split: Split) -> &'static str {
+    match split {
+        Split::Train => "train",
+        Split::Test => "test",
+    }
+}
+
+fn print_table(s: &PredictiveSummary, out: &Path) {
+    println!(
+        "posterior-predictive Table 1: {} draws of {} (config {}); median [5 %, 95 %] over the draws",
+        s.draw_rows.len(),
+        s.posterior.display(),
+        s.config.display()
+    );
+    let cell = |b: &Band, precision: usize| {
+        if precision == 0 {
+            format!("{:.3e} [{:.3e}, {:.3e}]", b.median, b.low, b.high)
+        } else {
+            format!("{:.5} [{:.5}, {:.5}]", b.median, b.low, b.high)
+        }
+    };
+    for r in &s.table1 {
+        println!(
+            "{} ({} trajectories; {} draws, {} diverged and left out):",
+            r.split, r.trajectories, r.draws, r.diverged_draws
+        );
+        println!("  CD mean m      {}", cell(&r.chamfer_mean_m, 5));
+        println!("  CD max m       {}", cell(&r.chamfer_max_m, 5));
+        println!("  CD std m       {}", cell(&r.chamfer_std_m, 5));
+        println!("  MSE mean m2    {}", cell(&r.object_mse_mean_m2, 0));
+        println!("  MSE max m2     {}", cell(&r.object_mse_max_m2, 0));
+        println!("  MSE std m2     {}", cell(&r.object_mse_std_m2, 0));
+    }
+    println!("wrote {}/summary.json", out.display());
+}
+
+/// Lets Ctrl-C stop the replay.
+struct Interruptible;
+
+impl Observer for Interruptible {
+    fn stop(&mut self) -> bool {
+        crate::interrupt::requested()
+    }
+}

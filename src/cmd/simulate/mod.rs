@@ -1,0 +1,287 @@
+//! `rlpkg simulate`: replays a recorded tool trajectory in the simulator with the reference scene
+//! placement (`reference-model.md` §1: package at the row-0 markers, cups around the initial cup
+//! point, disc at the object's x/z and the markers' mean y, a rest period first) and writes the
+//! simulated marker sites and disc pose as CSV, per-frame errors against the recording, PNG stills
+//! and an animated GIF.
+//!
+//! Files under `--out` (one CSV row per recorded frame, t = recording time, metres):
+//! * `markers_sim.csv`: `frame, t`, then `m<i>_x, m<i>_y, m<i>_z` for every row-0 marker of
+//!   `meta.toml` (in its order) embedded in the upper sheet, then `g<m>_x, g<m>_y, g<m>_z` for the
+//!   42 points of the nominal 6 x 7 marker grid (row-major; the reference's loss points).
+//! * `object_sim.csv`: `t, px, py, pz, qx, qy, qz, qw` (disc centre and orientation).
+//! * `metrics.csv`: `frame, t, chamfer_m, object_error_m`: the symmetric mean nearest-neighbour
+//!   distance between the 42 grid points and that frame's recorded markers, and the distance between
+//!   the simulated and recorded disc centres.
+//! * `summary.json`: settings, wall time, means and maxima, and the reference's per-second sums.
+//! * `frames/NNN_t<time>s.png` stills and `replay.gif` (rest period included, t < 0).
+//!
+//! Layout: [`schedule`] (when the replay stops), [`replay`] (the rollout of `rlpkg-replay` with a
+//! recorder of rows and pictures), [`outcome`] (the CSV rows, the summary and the report).
+
+mod outcome;
+mod replay;
+mod schedule;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use clap::Args;
+use rlpkg_mocap::load_trajectory;
+use rlpkg_sim::SceneConfig;
+
+use crate::error::{input_error, output_error};
+use crate::files::write_atomic;
+use replay::Replay;
+use schedule::ScheduleOptions;
+
+/// Arguments of `rlpkg simulate`.
+#[derive(Args, Debug)]
+pub struct SimulateArgs {
+    /// Trajectory folder with tool.csv, object.csv, markers.csv and meta.toml
+    /// (e.g. data/deformable-sim-real/HHMMM).
+    pub trajectory: PathBuf,
+    /// Scene config TOML [default: the built-in reference preset, configs/scenes/study.toml].
+    #[arg(long, value_name = "FILE")]
+    pub params: Option<PathBuf>,
+    /// Package vertices per layer, ROWSxCOLS (rows along the short side), e.g. 11x13.
+    #[arg(long, value_name = "RxC", value_parser = parse_grid, conflicts_with = "between")]
+    pub grid: Option<[usize; 2]>,
+    /// The reference marker grid with P particles between neighbouring markers: (6+5P)x(7+6P).
+    #[arg(long, value_name = "P")]
+    pub between: Option<usize>,
+    /// Output folder [default: runs/simulate-<trajectory id>].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// One GIF frame every N recorded frames (240 Hz); 24 gives 10 frames per simulated second.
+    #[arg(long, value_name = "N", default_value_t = 24)]
+    pub frames_every: usize,
+    /// One PNG still every S seconds of simulated time (plus the first and the last instant).
+    #[arg(long, value_name = "S", default_value_t = 1.0)]
+    pub png_every: f64,
+    /// Do not write the animated GIF.
+    #[arg(long)]
+    pub no_gif: bool,
+    /// Replay only the first S seconds of the recording (after the rest period).
+    #[arg(long, value_name = "S")]
+    pub seconds: Option<f64>,
+}
+
+fn parse_grid(text: &str) -> Result<[usize; 2], String> {
+    let expected =
+        || format!("`{text}`: expected ROWSxCOLS with two integers of at least 2, e.g. 11x13");
+    let (rows, cols) = text.split_once(['x', 'X']).ok_or_else(expected)?;
+    let rows: usize = rows.trim().parse().map_err(|_| expected())?;
+    let cols: usize = cols.trim().parse().map_err(|_| expected())?;
+    if rows < 2 || cols < 2 {
+        return Err(expected());
+    }
+    Ok([rows, cols])
+}
+
+/// Runs the command.
+pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
+    check_options(&args)?;
+    let dir = &args.trajectory;
+    if !dir.is_dir() {
+        return Err(input_error(format!(
+            "{}: trajectory folder not found (expected a folder with tool.csv, object.csv, markers.csv and meta.toml)",
+            dir.display()
+        )));
+    }
+    let recording = load_trajectory(dir).map_err(input_error)?;
+    let (config, config_source) = scene_config(&args)?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("runs/simulate-{}", recording.id)));
+    let options = ScheduleOptions {
+        frames_every: args.frames_every,
+        png_every: args.png_every,
+        seconds: args.seconds,
+    };
+    let replay = Replay::new(&recording, dir, &config, options)?;
+    // From here on a signal stops the replay between two pictures; the unfinished GIF removes
+    // its temporary file when dropped, and nothing else is open for writing then.
+    let _cooperation = crate::interrupt::Cooperation::start();
+    prepare_output(&out)?;
+    println!(
+        "simulate {}: {} package + {} cup particles, dt = 1/{} s, {:.2} s rest + {:.3} s replay ({} substeps)",
+        recording.id,
+        replay.model.num_package,
+        replay.model.num_cup,
+        config.integrator.substep_rate_hz,
+        replay.rest_s,
+        replay.replayed_s(),
+        replay.total_substeps(),
+    );
+    let started = Instant::now();
+    let outcome = replay.run(&recording, args.no_gif, &out)?;
+    let wall_s = started.elapsed().as_secs_f64();
+    let summary = outcome.summary(
+        &recording,
+        &replay.model,
+        replay.rest_s,
+        &config_source,
+        wall_s,
+        &out,
+    );
+    write_atomic(
+        &out.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )
+    .map_err(output_error)?;
+    outcome.print(wall_s, &out);
+    if let Some(event) = outcome.health {
+        anyhow::bail!(
+            "the simulation became unhealthy ({:?}) at recording time t = {:.4} s; the files in {} stop there",
+            event.reason,
+            event.time - replay.rest_s,
+            out.display()
+        );
+    }
+    Ok(())
+}
+
+/// Files written into the output folder besides `frames/`; a temporary one is `.<name>.<suffix>`.
+const OUTPUT_FILES: [&str; 5] = [
+    "markers_sim.csv",
+    "object_sim.csv",
+    "metrics.csv",
+    "summary.json",
+    "replay.gif",
+];
+
+/// Creates `out/frames` and removes temporary files an interrupted earlier run left behind.
+fn prepare_output(out: &Path) -> anyhow::Result<()> {
+    if out.exists() && !out.is_dir() {
+        return Err(input_error(format!(
+            "--out {}: is a file; expected a folder for the replay's files",
+            out.display()
+        )));
+    }
+    let frames = out.join("frames");
+    std::fs::create_dir_all(&frames).map_err(|err| {
+        input_error(format!(
+            "{}: cannot create the output folder: {err}",
+            frames.display()
+        ))
+    })?;
+    let is_output_temporary = |name: &str| {
+        OUTPUT_FILES
+            .iter()
+            .any(|file| name.starts_with(&format!(".{file}.")))
+    };
+    let is_still_temporary = |name: &str| name.starts_with('.') && name.contains(".tmp");
+    for (dir, is_temporary) in [
+        (out, &is_output_temporary as &dyn Fn(&str) -> bool),
+        (frames.as_path(), &is_still_temporary),
+    ] {
+        let entries = std::fs::read_dir(dir)
+            .map_err(|err| input_error(format!("{}: {err}", dir.display())))?;
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if is_temporary(&name) {
+                let path = entry.path();
+                std::fs::remove_file(&path).map_err(|err| {
+                    input_error(format!(
+                        "{}: cannot remove this leftover temporary file: {err}",
+                        path.display()
+                    ))
+                })?;
+            }
+        }
+    }
+    Ok(())
+}
+
+fn check_options(args: &SimulateArgs) -> anyhow::Result<()> {
+    if args.frames_every == 0 {
+        return Err(input_error(
+            "--frames-every 0: expected a whole number of frames of at least 1",
+        ));
+    }
+    if !(args.png_every.is_finite() && args.png_every > 0.0) {
+        return Err(input_error(format!(
+            "--png-every {}: expected a positive number of seconds",
+            args.png_every
+        )));
+    }
+    if let Some(seconds) = args.seconds {
+        if !(seconds.is_finite() && seconds > 0.0) {
+            return Err(input_error(format!(
+                "--seconds {seconds}: expected a positive number of seconds"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The scene config (file or built-in reference preset) with the grid options applied.
+fn scene_config(args: &SimulateArgs) -> anyhow::Result<(SceneConfig, String)> {
+    let (mut config, source) = match &args.params {
+        Some(path) => (
+            SceneConfig::load(path).map_err(input_error)?,
+            path.display().to_string(),
+        ),
+        None => (
+            SceneConfig::preset("reference").map_err(input_error)?,
+            "built-in reference preset (configs/scenes/study.toml)".to_string(),
+        ),
+    };
+    let grid = match (args.grid, args.between) {
+        (Some(grid), _) => Some((grid, "--grid")),
+        (None, Some(p)) => {
+            let side = |base: usize, per: usize| p.checked_mul(per)?.checked_add(base);
+            let grid = side(6, 5).zip(side(7, 6)).ok_or_else(|| {
+                input_error(format!(
+                    "--between {p}: expected a small number of particles"
+                ))
+            })?;
+            Some(([grid.0, grid.1], "--between"))
+        }
+        (None, None) => None,
+    };
+    if let Some((grid, option)) = grid {
+        config.package.grid = grid;
+        config.validate(option).map_err(input_error)?;
+    }
+    Ok((config, source))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_option_parses_rows_and_columns() {
+        assert_eq!(parse_grid("11x13"), Ok([11, 13]));
+        assert_eq!(parse_grid("21X25"), Ok([21, 25]));
+        for bad in ["11", "11x", "x13", "1x13", "ax b", "11x13x2"] {
+            let err = parse_grid(bad).unwrap_err();
+            assert!(err.contains(bad) && err.contains("ROWSxCOLS"), "{err}");
+        }
+    }
+
+    #[test]
+    fn leftover_temporary_files_are_removed_and_outputs_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        std::fs::create_dir_all(out.join("frames")).unwrap();
+        let leftovers = [
+            ".summary.json.AbC123",
+            ".replay.gif.4242.0.tmp",
+            "frames/.000_t-2.000s.png.4242.3.tmp.png",
+        ];
+        let kept = ["metrics.csv", "frames/000_t-2.000s.png", ".hidden-notes"];
+        for name in leftovers.iter().chain(&kept) {
+            std::fs::write(out.join(name), "x").unwrap();
+        }
+        prepare_output(&out).unwrap();
+        for name in leftovers {
+            assert!(!out.join(name).exists(), "{name}");
+        }
+        for name in kept {
+            assert!(out.join(name).exists(), "{name}");
+        }
+    }
+}

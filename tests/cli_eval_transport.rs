@@ -1,0 +1,122 @@
+//! End-to-end test of `rlpkg eval --policy <file.onnx> --config <file.toml>` on the transport task:
+//! the exported file of a tiny sensors-only run gives the same table as the run's checkpoint.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn rlpkg(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("rlpkg runs")
+}
+
+fn ok(output: &Output) -> String {
+    assert!(
+        output.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        output.status.code(),
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout.clone()).unwrap()
+}
+
+/// The shipped training config `name`, shrunk: 2 copies on an 11 x 13 grid, 2 s episodes, 2
+/// updates, one settled variant.
+fn tiny(name: &str) -> String {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let text = std::fs::read_to_string(format!("{root}/configs/train/{name}"))
+        .unwrap()
+        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
+        .replace(
+            "recordings = \"data/",
+            &format!("recordings = \"{root}/data/"),
+        )
+        .replace("num_envs = 16", "num_envs = 2")
+        .replace("total_steps = 819200", "total_steps = 16")
+        .replace("rollout_steps = 64", "rollout_steps = 8")
+        .replace("minibatches = 4", "minibatches = 2")
+        .replace("time_limit_s = 12.0", "time_limit_s = 2.0")
+        .replace("settled_variants = 16", "settled_variants = 1")
+        .replace("settle_s = 0.5", "settle_s = 0.1");
+    assert!(text.contains("total_steps = 16") && text.contains("time_limit_s = 2.0"));
+    text
+}
+
+/// The printed table: every line after the first (which names what was evaluated) up to the
+/// line naming the plots (their folder differs).
+fn table(printed: &str) -> String {
+    printed
+        .lines()
+        .skip(1)
+        .take_while(|line| !line.starts_with("plots:"))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[test]
+fn the_exported_transport_policy_evaluates_exactly_as_its_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = "transport-sensors.toml";
+    std::fs::write(dir.path().join(config), tiny(config)).unwrap();
+    ok(&rlpkg(&["train", config, "--quiet"], dir.path()));
+    let onnx = "runs/transport-sensors/policy.onnx";
+    assert!(dir.path().join(onnx).exists());
+    let options = [
+        "--episodes",
+        "3",
+        "--seed",
+        "4",
+        "--scripted",
+        "1.0",
+        "--recorded",
+        "medium",
+    ];
+    let mut by_run = vec!["eval", "runs/transport-sensors"];
+    by_run.extend(options);
+    let from_checkpoint = ok(&rlpkg(&by_run, dir.path()));
+    let mut by_file = vec!["eval", "--policy", onnx, "--config", config];
+    by_file.extend(options);
+    let from_file = ok(&rlpkg(&by_file, dir.path()));
+    assert!(
+        from_file.starts_with(&format!("{onnx} (exported policy, through tract)")),
+        "{from_file}"
+    );
+    let expected = table(&from_checkpoint);
+    assert!(expected.contains("policy") && expected.contains("scripted x1"));
+    assert_eq!(
+        table(&from_file),
+        expected,
+        "{from_checkpoint}\n{from_file}"
+    );
+    let outputs = dir.path().join("runs/transport-sensors/policy-eval");
+    for name in ["summary.json", "episode-0.png", "episode-0.gif"] {
+        assert!(outputs.join(name).exists(), "{name}");
+    }
+
+    // The privileged task's actor observes other quantities: the file does not fit it.
+    std::fs::write(dir.path().join("transport.toml"), tiny("transport.toml")).unwrap();
+    let mismatch = rlpkg(
+        &["eval", "--policy", onnx, "--config", "transport.toml"],
+        dir.path(),
+    );
+    assert_eq!(mismatch.status.code(), Some(2));
+    let message = String::from_utf8_lossy(&mismatch.stderr);
+    assert!(
+        message.contains(onnx) && message.contains("obs_names"),
+        "{message}"
+    );
+    // Without its settings the transport file cannot be evaluated.
+    let bare = rlpkg(&["eval", "--policy", onnx], dir.path());
+    assert_eq!(bare.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bare.stderr).contains("--config"));
+    // A sensors table without observation = "sensors" names the key.
+    let text = tiny(config).replace("observation = \"sensors\"", "");
+    std::fs::write(dir.path().join("bad.toml"), text).unwrap();
+    let bad = rlpkg(&["train", "bad.toml", "--quiet"], dir.path());
+    assert_eq!(bad.status.code(), Some(2));
+    let message = String::from_utf8_lossy(&bad.stderr);
+    assert!(message.contains("transport.sensors"), "{message}");
+}
