@@ -151,7 +151,8 @@ fn profile_rows_join_the_table_and_bad_scales_are_refused() {
     let report: serde_json::Value = serde_json::from_str(&ok(&output)).unwrap();
     let printed = String::from_utf8_lossy(&output.stderr).into_owned();
     // The policy and scripted rows are unchanged; one row per scale follows them.
-    let rows: Vec<&str> = table(&printed).lines().map(str::trim_end).collect();
+    let printed_table = table(&printed);
+    let rows: Vec<&str> = printed_table.lines().map(str::trim_end).collect();
     for line in table(&without).lines() {
         assert!(rows.contains(&line.trim_end()), "{line}\n{printed}");
     }
