@@ -120,3 +120,71 @@ fn the_exported_transport_policy_evaluates_exactly_as_its_checkpoint() {
     let message = String::from_utf8_lossy(&bad.stderr);
     assert!(message.contains("transport.sensors"), "{message}");
 }
+
+#[test]
+fn profile_rows_join_the_table_and_bad_scales_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = "transport.toml";
+    std::fs::write(dir.path().join(config), tiny(config)).unwrap();
+    ok(&rlpkg(&["train", config, "--quiet"], dir.path()));
+    let run = "runs/transport";
+    let base = [
+        "eval",
+        run,
+        "--episodes",
+        "2",
+        "--seed",
+        "3",
+        "--scripted",
+        "1.0",
+        "--recorded",
+        "none",
+    ];
+    let without = ok(&rlpkg(&base, dir.path()));
+    let summary = dir.path().join(run).join("eval/summary.json");
+    let plain: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    assert!(plain.get("profile").is_none(), "{plain}");
+    let mut with_profile = base.to_vec();
+    with_profile.extend(["--profile", "0.5,1", "--json"]);
+    let output = rlpkg(&with_profile, dir.path());
+    let report: serde_json::Value = serde_json::from_str(&ok(&output)).unwrap();
+    let printed = String::from_utf8_lossy(&output.stderr).into_owned();
+    // The policy and scripted rows are unchanged; one row per scale follows them.
+    let printed_table = table(&printed);
+    let rows: Vec<&str> = printed_table.lines().map(str::trim_end).collect();
+    for line in table(&without).lines() {
+        assert!(rows.contains(&line.trim_end()), "{line}\n{printed}");
+    }
+    for driver in ["profile x0.5", "profile x1"] {
+        assert!(
+            rows.iter().any(|r| r.starts_with(&format!("{driver} "))),
+            "{driver}\n{printed}"
+        );
+    }
+    let drivers: Vec<&str> = report["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["driver"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        drivers,
+        ["policy", "scripted x1", "profile x0.5", "profile x1"]
+    );
+    assert_eq!(report["rows"][2]["episodes"], 2);
+    // Scale 1 stands for the tool's own limits of [transport.limits].
+    let limits = &report["profile"]["base_limits"];
+    assert_eq!(limits["speed_m_s"], 0.945, "{report}");
+    assert_eq!(limits["angular_accel_rad_s2"], 10.0, "{report}");
+
+    for bad in ["0", "-1", "NaN", "10.5", "0.5,0"] {
+        let flag = format!("--profile={bad}");
+        let mut args = base.to_vec();
+        args.push(&flag);
+        let refused = rlpkg(&args, dir.path());
+        assert_eq!(refused.status.code(), Some(2), "{bad}");
+        let message = String::from_utf8_lossy(&refused.stderr);
+        assert!(message.contains("--profile"), "{bad}: {message}");
+    }
+}

@@ -1,17 +1,24 @@
 //! The path-following controller: the policy's action (path speed, tilt offsets) advances the
 //! reference along the episode's path and a tracking controller turns the reference pose into the
-//! tool's twist command; and the scripted baseline's actions, which play a recorded timing.
+//! tool's twist command; the scripted baseline's actions, which play a recorded timing; and the
+//! profile baseline's actions, which follow a time-optimal, jerk-limited motion profile.
 
 use glam::{DQuat, DVec3};
 use rlpkg_sim::ToolCommand;
 
 use super::geometry::{quat, rotation_between, v3};
+use super::profile::{plan_path_profile, MotionLimits, PathProfile};
 use super::{sim_error, Episode, Transport, TransportPath};
 use crate::{check_action_len, EnvError};
 
 /// The reference reaches the place pose when it is this close (m): braking to the end of the
 /// path would otherwise approach it forever.
 const PATH_END_SNAP_M: f64 = 1e-3;
+
+/// Fraction of the reference's lag behind a motion profile that the next path speed makes up
+/// per control interval: the trapezoidal advance of the reference then settles on the plan
+/// without ringing (the lag's recurrence has both roots at 0.5 in magnitude).
+const PROFILE_LAG_GAIN: f64 = 0.5;
 
 impl Transport {
     /// The scripted baseline's actions for every copy now: the recorded path's own progress
@@ -38,6 +45,51 @@ impl Transport {
                 let planned = timing.recorded_progress(time_scale * (elapsed + t)) * stretch;
                 let ahead = planned - episode.progress;
                 [(ahead.max(0.0) / t) as f32, 0.0, 0.0]
+            })
+            .collect()
+    }
+
+    /// The time-optimal, jerk-limited progress along each copy's path now ([`plan_path_profile`]):
+    /// from rest at the pick pose to rest at the place pose under `limits` on the reference
+    /// pose's linear and angular speed, acceleration and jerk, the tilt following the episode's
+    /// tilt profile. Plan after a reset; [`Transport::profile_actions`] plays the plans.
+    pub fn plan_profiles(&self, limits: &MotionLimits) -> Result<Vec<PathProfile>, EnvError> {
+        self.episodes
+            .iter()
+            .map(|episode| {
+                let path = &self.paths[episode.path];
+                let pose = |s: f64| {
+                    (
+                        self.reference_position(episode, s),
+                        episode.target_tilt * path.tilt_fraction(s),
+                    )
+                };
+                plan_path_profile(path.length_m, pose, limits, self.dt)
+                    .map_err(|e| EnvError::Simulator(format!("path {}: {e}", path.id)))
+            })
+            .collect()
+    }
+
+    /// The profile baseline's actions for every copy now: the path speed `profiles[copy]`
+    /// plans for the end of the next control interval plus a share of the reference's lag
+    /// behind the plan, and no tilt offset (the nominal orientation already follows the tilt
+    /// profile at the reference's progress). The actions go through the same clamps and rate
+    /// limits as any other ([`Transport::scripted_actions`], a policy's).
+    pub fn profile_actions(&self, profiles: &[PathProfile]) -> Vec<f32> {
+        let t = self.dt;
+        self.episodes
+            .iter()
+            .zip(profiles)
+            .flat_map(|(episode, profile)| {
+                let elapsed = episode.steps as f64 * t;
+                let (planned, _) = profile.at(elapsed);
+                let (_, speed) = profile.at(elapsed + t);
+                let lag = planned - episode.progress;
+                [
+                    ((speed + PROFILE_LAG_GAIN * lag / t).max(0.0)) as f32,
+                    0.0,
+                    0.0,
+                ]
             })
             .collect()
     }
@@ -180,5 +232,43 @@ mod tests {
             seconds > 0.8 * recorded && seconds < recorded + 3.0,
             "{seconds} s against {recorded} s recorded"
         );
+    }
+
+    #[test]
+    fn the_profile_brings_the_reference_to_the_place_pose_at_rest_within_the_limits() {
+        use crate::transport::MotionLimits;
+        let mut t = env(&test_table(), 2);
+        let mut out = t.buffers();
+        t.set_retire_finished(true);
+        t.try_reset(3, &mut out).unwrap();
+        let limits = MotionLimits::of_tool(&t.config.limits).scaled(0.5);
+        let profiles = t.plan_profiles(&limits).unwrap();
+        let dt = t.control_interval_s();
+        let mut speeds = vec![Vec::new(); 2];
+        for _ in 0..((profiles[0].duration_s.max(profiles[1].duration_s) / dt) as usize + 20) {
+            let actions = t.profile_actions(&profiles);
+            t.step(&actions, &mut out).unwrap();
+            for (copy, speed) in speeds.iter_mut().enumerate() {
+                speed.push(t.episodes[copy].path_speed);
+            }
+        }
+        for (copy, profile) in profiles.iter().enumerate() {
+            let episode = &t.episodes[copy];
+            let length = t.paths[episode.path].length_m;
+            assert_eq!(profile.length_m, length);
+            // The reference reached the place pose and stopped there...
+            assert_eq!(episode.progress, length, "copy {copy}: {:?}", t.info());
+            assert_eq!(episode.path_speed, 0.0);
+            // ...no later than a few control intervals after the plan, and never faster than it.
+            let arrival = speeds[copy].iter().rposition(|&v| v > 0.0).unwrap() + 1;
+            assert!(
+                (arrival as f64 * dt - profile.duration_s).abs() < 5.0 * dt,
+                "copy {copy}: at {} s, planned {} s",
+                arrival as f64 * dt,
+                profile.duration_s
+            );
+            let fastest = speeds[copy].iter().fold(0.0f64, |a, &b| a.max(b));
+            assert!(fastest <= profile.peak_speed_m_s * 1.05, "{fastest}");
+        }
     }
 }

@@ -38,7 +38,9 @@
 //! - `recordings`: the recorded paths and timings, from the motion-capture dataset;
 //! - `path`: one recorded path, resampled in arc length;
 //! - `episode`: settled variants, the draws of an episode, reset and episode ends;
-//! - `control`: action to reference to the tool's twist command, and the scripted baseline;
+//! - `control`: action to reference to the tool's twist command, and the scripted, recorded and
+//!   motion-profile baselines' actions;
+//! - `profile`: the time-optimal, jerk-limited motion profile along a path (the profile baseline);
 //! - `observe`: observation names, the spec and the observation rows;
 //! - `sensors`: the cell's sensors (vacuum leak model, wrist wrench, noise, delay lines);
 //! - `reward`: failure, success, reward terms and the info row of a step;
@@ -53,6 +55,7 @@ mod evaluate;
 mod geometry;
 mod observe;
 mod path;
+mod profile;
 mod recordings;
 mod reward;
 mod sensors;
@@ -78,6 +81,9 @@ pub use observe::{
     critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS, WRIST_OBSERVATIONS,
 };
 pub use path::TransportPath;
+pub use profile::{
+    plan_path_profile, LimitUse, MotionLimits, PathProfile, JERK_RAMP_S, PLAN_STEP_S,
+};
 pub use recordings::{load_paths, recorded_timings};
 pub use reward::{info_names, Failure, RewardTerms, StepOutcome, REWARD_TERM_NAMES};
 pub use sensors::{

@@ -3,6 +3,9 @@
 //! * [`explicit`]: Warp's semi-implicit Euler ([`Solver::SemiImplicitEuler`]): one force evaluation
 //!   per substep.
 //! * [`block_descent`]: implicit Euler solved by Vertex Block Descent ([`Solver::BlockDescent`]).
+//! * [`global_descent`]: block descent's implicit Euler step with a global step through a
+//!   prefactored banded system before each sweep ([`Solver::GlobalDescent`]), for stiff film at
+//!   large substeps.
 //!
 //! The scene's `integrator.solver` picks one for the whole batch; each block holds it as an
 //! [`AnySolver`] with the solver's own buffers and settings, and dispatches once per substep. A
@@ -10,7 +13,8 @@
 //! prescribes ([`LaneSetup`]), is given the substep's times and tool poses ([`Substep`]), and
 //! updates the [`State`] in place, including the attachment springs' forces for the seal model
 //! (the block runs the seal and health checks after it). Force laws come from [`crate::forces`];
-//! the solvers never depend on each other.
+//! the solvers never depend on each other, except that global descent drives block descent's
+//! sweeps (through [`block_descent::GlobalStep`]).
 //!
 //! Every solver keeps the lane rules of the batch: a lane's arithmetic never depends on another
 //! lane's, frozen lanes are kept bit for bit by per-lane selects, and lane-dependent shortcuts
@@ -23,6 +27,7 @@
 pub(crate) mod across_elements;
 pub(crate) mod block_descent;
 pub(crate) mod explicit;
+pub(crate) mod global_descent;
 
 use crate::config::Solver;
 use crate::constants::StepConstants;
@@ -31,6 +36,7 @@ use crate::state::{LaneSetup, State, ToolLanes};
 
 use block_descent::BlockDescent;
 use explicit::SemiImplicitEuler;
+use global_descent::GlobalDescent;
 
 /// What a solver is given for one substep besides the state it advances.
 pub(crate) struct Substep<'a, const W: usize> {
@@ -66,6 +72,7 @@ pub(crate) trait Integrator<const W: usize> {
 pub(crate) enum AnySolver<const W: usize> {
     SemiImplicitEuler(SemiImplicitEuler<W>),
     BlockDescent(BlockDescent<W>),
+    GlobalDescent(GlobalDescent<W>),
 }
 
 impl<const W: usize> Integrator<W> for AnySolver<W> {
@@ -75,6 +82,7 @@ impl<const W: usize> Integrator<W> for AnySolver<W> {
                 AnySolver::SemiImplicitEuler(SemiImplicitEuler::new(model))
             }
             Solver::BlockDescent => AnySolver::BlockDescent(BlockDescent::new(model)),
+            Solver::GlobalDescent => AnySolver::GlobalDescent(GlobalDescent::new(model)),
         }
     }
 
@@ -83,6 +91,7 @@ impl<const W: usize> Integrator<W> for AnySolver<W> {
         match self {
             AnySolver::SemiImplicitEuler(s) => s.substep(step, state),
             AnySolver::BlockDescent(s) => s.substep(step, state),
+            AnySolver::GlobalDescent(s) => s.substep(step, state),
         }
     }
 
@@ -90,6 +99,7 @@ impl<const W: usize> Integrator<W> for AnySolver<W> {
         match self {
             AnySolver::SemiImplicitEuler(s) => s.bytes(),
             AnySolver::BlockDescent(s) => s.bytes(),
+            AnySolver::GlobalDescent(s) => s.bytes(),
         }
     }
 }

@@ -70,6 +70,11 @@ pub struct EvalArgs {
     /// recorded high-velocity path played that many times as fast).
     #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.25, 1.5], conflicts_with = "params")]
     pub scripted: Vec<f64>,
+    /// Transport policies: scales of the tool's motion limits (linear and angular speed,
+    /// acceleration and jerk) for the time-optimal, jerk-limited motion profile along the
+    /// episode's path evaluated beside the policy, e.g. 0.5,0.75,1 [default: none].
+    #[arg(long, value_delimiter = ',', conflicts_with = "params")]
+    pub profile: Vec<f64>,
     /// Transport policies: velocity levels of the recorded baselines evaluated beside the policy (the
     /// timing of the low, medium or high-velocity recording of the episode's tilt level, played
     /// along the episode's path); `none` for none.

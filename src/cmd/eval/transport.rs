@@ -1,7 +1,8 @@
 //! `rlpkg eval runs/<transport run>` and `rlpkg eval --policy <file.onnx> --config <file.toml>`:
-//! the trained policy (the run's checkpoint, or the exported file through tract) and the scripted
-//! baseline (the recorded high-velocity path, time-scaled) over the same seeded, randomised
-//! episodes, side by side.
+//! the trained policy (the run's checkpoint, or the exported file through tract), the scripted
+//! baseline (the recorded high-velocity path, time-scaled), the profile baseline (the time-optimal,
+//! jerk-limited motion along the episode's path under scaled tool limits) and the recorded
+//! baselines over the same seeded, randomised episodes, side by side.
 
 use std::path::{Path, PathBuf};
 
@@ -10,8 +11,8 @@ use anyhow::Context;
 use rlpkg_agents::export::OnnxPolicy;
 use rlpkg_agents::TrainedPolicy;
 use rlpkg_env::transport::{
-    load_paths, load_scene, recorded_timings, run_traced_episodes, OutcomeSummary, TracePoint,
-    TransportConfig, TransportPath,
+    load_paths, load_scene, recorded_timings, run_traced_episodes, MotionLimits, OutcomeSummary,
+    PathProfile, TracePoint, TransportConfig, TransportPath,
 };
 use rlpkg_env::Transport;
 use rlpkg_vec_env::{EnvError, VecEnv};
@@ -32,6 +33,9 @@ struct TransportReport {
     seed: u64,
     /// Recorded baselines: velocity level, and for each path the recording whose timing it plays.
     recorded: Vec<RecordedBaseline>,
+    /// `--profile`: the motion limits that scale 1 of the profile baseline stands for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    profile: Option<ProfileBaseline>,
     rows: Vec<OutcomeSummary>,
     /// `--trajectories`: the policy and the recording itself on each recording's own conditions.
     trajectories: Vec<OutcomeSummary>,
@@ -45,6 +49,15 @@ struct RecordedBaseline {
     velocity: String,
     /// `path id -> recording id` for each configured path.
     timings: Vec<(String, String)>,
+}
+
+/// The limits of the profile baseline's rows (`profile xS`: every limit times S).
+#[derive(Serialize)]
+struct ProfileBaseline {
+    /// The tool's own limits of `[transport.limits]`, with jerks that reach its accelerations in
+    /// [`rlpkg_env::transport::JERK_RAMP_S`].
+    base_limits: MotionLimits,
+    scales: Vec<f64>,
 }
 
 /// Deterministic actions for `n` rows of observations.
@@ -107,10 +120,10 @@ pub fn run_onnx(
     evaluate(&driver, transport, source, episodes, args)
 }
 
-/// Evaluates `driver`'s policy, the scripted baseline at each time scale of `args.scripted` and
-/// the recorded baseline of each velocity level in `args.recorded` over `episodes` randomised
-/// episodes from `args.seed` (and `args.trajectories`' recordings) of the task `transport`
-/// describes; prints the table (or JSON), writes plots, an animation and `summary.json` to
+/// Evaluates `driver`'s policy, the scripted baseline at each time scale of `args.scripted`, the
+/// profile baseline at each limit scale of `args.profile` and the recorded baseline of each
+/// velocity level in `args.recorded` over `episodes` randomised episodes from `args.seed` (and
+/// `args.trajectories`' recordings) of the task `transport` describes; prints the table (or JSON), writes plots, an animation and `summary.json` to
 /// `driver.out`.
 fn evaluate(
     driver: &Driver,
@@ -140,6 +153,15 @@ fn evaluate(
             "--scripted {bad}: expected time scales in (0, 10]"
         )));
     }
+    if let Some(bad) = args
+        .profile
+        .iter()
+        .find(|s| !(s.is_finite() && **s > 0.0 && **s <= 10.0))
+    {
+        return Err(input_error(format!(
+            "--profile {bad}: expected scales of the tool's motion limits in (0, 10]"
+        )));
+    }
     // A signal stops the episodes at the next control step; the plots, the GIF and summary.json
     // are written whole or not at all.
     let _cooperation = crate::interrupt::Cooperation::start();
@@ -167,6 +189,21 @@ fn evaluate(
             Ok(env.scripted_actions(scale))
         })?;
         rows.push(OutcomeSummary::of(&format!("scripted x{scale}"), &outcomes));
+    }
+    let base_limits = MotionLimits::of_tool(&transport.limits);
+    for &scale in &args.profile {
+        let limits = base_limits.scaled(scale);
+        let mut env = make().map_err(input_error)?;
+        // Planned once per episode, right after the reset that draws it.
+        let mut plans: Option<Vec<PathProfile>> = None;
+        let (outcomes, _) = run_traced_episodes::<anyhow::Error>(&mut env, seed, &[], |env, _| {
+            crate::interrupt::check()?;
+            if plans.is_none() {
+                plans = Some(env.plan_profiles(&limits)?);
+            }
+            Ok(env.profile_actions(plans.as_deref().unwrap_or_default()))
+        })?;
+        rows.push(OutcomeSummary::of(&format!("profile x{scale}"), &outcomes));
     }
     let mut baselines = Vec::new();
     for velocity in recorded {
@@ -239,6 +276,10 @@ fn evaluate(
         global_step: driver.checkpoint.map(|c| c.1),
         seed,
         recorded: baselines,
+        profile: (!args.profile.is_empty()).then(|| ProfileBaseline {
+            base_limits,
+            scales: args.profile.clone(),
+        }),
         rows,
         trajectories: trajectory_rows,
         plots,
@@ -252,6 +293,20 @@ fn evaluate(
          scripted xS = the recorded high-velocity path played S times as fast\n",
         report.run, episodes, seed
     );
+    if let Some(p) = &report.profile {
+        let l = &p.base_limits;
+        text += &format!(
+            "profile xS = the time-optimal, jerk-limited motion along the episode's path with S x \
+             the tool's limits: {:.3} m/s, {:.3} m/s^2, {:.3} m/s^3, {:.3} rad/s, {:.3} rad/s^2, \
+             {:.3} rad/s^3\n",
+            l.speed_m_s,
+            l.accel_m_s2,
+            l.jerk_m_s3,
+            l.angular_speed_rad_s,
+            l.angular_accel_rad_s2,
+            l.angular_jerk_rad_s3
+        );
+    }
     for b in &report.recorded {
         let pairs: Vec<String> = b
             .timings

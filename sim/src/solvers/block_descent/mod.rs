@@ -25,7 +25,7 @@ mod vertex;
 use crate::forces::{self, ContactMaterial};
 use crate::math::{get3, set3, Lanes, Quat, Real, Sym3, V3};
 use crate::model::Model;
-use crate::state::{LaneSpring, State};
+use crate::state::{LaneParams, LaneSpring, State};
 
 use super::{Integrator, Substep};
 use disc::{rotation_between, turned, world_inertia_times, Disc6};
@@ -105,6 +105,135 @@ impl<const W: usize> BlockDescent<W> {
     }
 }
 
+/// What the Newton system of every package vertex in one sweep reads besides the state and the
+/// solver's buffers.
+pub(crate) struct VertexTerms<'a, const W: usize> {
+    model: &'a Model,
+    p: &'a LaneParams<W>,
+    membrane: Membrane<L<W>>,
+    /// `m / h²` of a package particle.
+    inertial: L<W>,
+    inv_h: L<W>,
+    ground: ContactMaterial<L<W>>,
+    /// Particle radius, and the squared reach of a disc contact.
+    rad: L<W>,
+    reach2: L<W>,
+    /// The disc's current iterate (centre, orientation) and the velocity and spin it implies.
+    disc: (V3<L<W>>, Quat<L<W>>),
+    disc_velocity: (V3<L<W>>, V3<L<W>>),
+}
+
+/// A global step taken before each block-descent sweep, from the residual forces of every
+/// package vertex (the `global_descent` solver's; plain block descent takes none, `()`).
+pub(crate) trait GlobalStep<const W: usize> {
+    /// Prepares the substep's global system once its contacts are known (`state` holds the
+    /// package's inertial prediction and the cups at the end of the step).
+    fn prepare(&mut self, step: &Substep<'_, W>, state: &State<W>);
+    /// The buffer of residual forces per package vertex (`None`: no global step), which
+    /// [`GlobalStep::solve`] turns into the global displacement.
+    fn residual(&mut self) -> Option<&mut [V3<L<W>>]>;
+    /// Replaces the residual forces in the buffer by the displacement of the global step.
+    fn solve(&mut self);
+}
+
+impl<const W: usize> GlobalStep<W> for () {
+    #[inline(always)]
+    fn prepare(&mut self, _: &Substep<'_, W>, _: &State<W>) {}
+    #[inline(always)]
+    fn residual(&mut self) -> Option<&mut [V3<L<W>>]> {
+        None
+    }
+    #[inline(always)]
+    fn solve(&mut self) {}
+}
+
+impl<const W: usize> BlockDescent<W> {
+    /// The Newton system of package vertex `i` at the current iterate: the force (the negative
+    /// gradient of the step's incremental potential, inertia included) and its 3x3 stiffness.
+    #[inline(always)]
+    fn vertex_system(
+        &self,
+        terms: &VertexTerms<'_, W>,
+        state: &State<W>,
+        i: usize,
+    ) -> (V3<L<W>>, Sym3<L<W>>) {
+        let VertexTerms {
+            model,
+            p,
+            membrane,
+            inertial,
+            inv_h,
+            ground,
+            rad,
+            reach2,
+            disc: (com, q),
+            disc_velocity: (disc_v, disc_w),
+        } = *terms;
+        let zero = L::<W>::splat(0.0);
+        let half = L::<W>::splat(0.5);
+        let up = V3::new(zero, L::splat(1.0), zero);
+        let radius = model.particle_radius;
+        let cup_start = model.cup_start();
+        let xi = state.x[i];
+        let vi = self.x_rate[i];
+        let mut force = (self.inertia_target[i] - xi) * inertial;
+        let mut stiff = Sym3::diagonal(inertial);
+        self.add_membrane(model, &state.x, i, membrane, inv_h, &mut force, &mut stiff);
+        // Bending, evaluated at the start of the sweep (it is soft: lagging it costs
+        // little convergence and saves three of its four evaluations).
+        force += self.bend_force[i];
+        stiff.add_assign(self.bend_stiffness[i]);
+        let slots = self.spring_slot_starts[i] as usize..self.spring_slot_starts[i + 1] as usize;
+        for slot in &self.spring_slots[slots] {
+            let mut anchor = V3::<L<W>>::zero();
+            let mut anchor_v = V3::<L<W>>::zero();
+            let mut rest = L::<W>::splat(1.0);
+            let mut on = zero;
+            for l in 0..W {
+                let s = slot[l];
+                if s == u32::MAX {
+                    continue;
+                }
+                let spring = &state.springs[s as usize];
+                let c = cup_start + s as usize;
+                set3(&mut anchor, l, get3(&state.x[c], l));
+                set3(&mut anchor_v, l, get3(&state.v[c], l));
+                rest.0[l] = spring.rest.0[l];
+                on.0[l] = spring.sealed.0[l];
+            }
+            // Lanes without this slot, and lip elements that let go, pull with nothing.
+            let (ke, kd) = (p.spring[0] * on, p.spring[1] * on);
+            let (f, kk) = spring_vertex(xi, anchor, vi, anchor_v, rest, ke, kd, inv_h);
+            force += V3::select_lt(half, on, f, V3::zero());
+            stiff.add_assign(kk.keep_lt(half, on));
+        }
+        // Contacts only change the lanes that touch (see the module docs of `solvers`).
+        if xi.y.0.iter().any(|&y| y < radius) {
+            let gap = xi.y - rad;
+            let (f, kk) = contact_vertex(gap, up, vi, ground, inv_h);
+            force = V3::select_lt(gap, zero, force + f, force);
+            stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), stiff);
+        }
+        if self.near_disc[i] {
+            let (gap, f, kk, _) = self.disc_contact(
+                state,
+                p.disc_contact,
+                i,
+                com,
+                q,
+                disc_v,
+                disc_w,
+                rad,
+                reach2,
+                inv_h,
+            );
+            force = V3::select_lt(gap, zero, force + f, force);
+            stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), stiff);
+        }
+        (force, stiff)
+    }
+}
+
 impl<const W: usize> Integrator<W> for BlockDescent<W> {
     fn new(model: &Model) -> Self {
         let c = &model.config.integrator;
@@ -148,6 +277,19 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
     /// One substep (see the module documentation).
     #[inline(always)]
     fn substep(&mut self, step: &Substep<'_, W>, state: &mut State<W>) {
+        self.substep_with(step, state, &mut ());
+    }
+}
+
+impl<const W: usize> BlockDescent<W> {
+    /// One substep with `global`'s step before each sweep.
+    #[inline(always)]
+    pub(crate) fn substep_with(
+        &mut self,
+        step: &Substep<'_, W>,
+        state: &mut State<W>,
+        global: &mut impl GlobalStep<W>,
+    ) {
         let (model, k, setup) = (step.model, step.k, step.setup);
         let zero = L::<W>::splat(0.0);
         let half = L::<W>::splat(0.5);
@@ -232,6 +374,7 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
             state.contact_normal[i] = disc_start.q.rotate(n_local);
         }
         self.index_springs(&state.springs, num_package);
+        global.prepare(step, state);
 
         let rad = L::<W>::splat(radius);
         let ground = ContactMaterial {
@@ -258,6 +401,32 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
             let disc_w = rotation_between(q, disc_start.q) * inv_h;
 
             self.bending_at_sweep_start(model, &state.x, p.edge, inv_h);
+            let terms = VertexTerms {
+                model,
+                p: &p,
+                membrane,
+                inertial,
+                inv_h,
+                ground,
+                rad,
+                reach2,
+                disc: (com, q),
+                disc_velocity: (disc_v, disc_w),
+            };
+
+            // A composite solver's global step, from the residual forces at the sweep's start.
+            if let Some(residual) = global.residual() {
+                for (i, r) in residual.iter_mut().enumerate() {
+                    *r = self.vertex_system(&terms, state, i).0;
+                }
+            }
+            global.solve();
+            if let Some(dx) = global.residual() {
+                for (i, d) in dx.iter().enumerate() {
+                    state.x[i] = keep(state.x[i] + *d, state.x[i]);
+                    self.x_rate[i] = (state.x[i] - self.x_start[i]) * inv_h;
+                }
+            }
 
             // 4. Gauss-Seidel sweep over the package vertices, forwards and backwards in turn:
             // one direction only drifts an unconverged solve along the vertex order (a falling
@@ -269,62 +438,7 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
                     num_package - 1 - n
                 };
                 let xi = state.x[i];
-                let vi = self.x_rate[i];
-                let mut force = (self.inertia_target[i] - xi) * inertial;
-                let mut stiff = Sym3::diagonal(inertial);
-                self.add_membrane(model, &state.x, i, membrane, inv_h, &mut force, &mut stiff);
-                // Bending, evaluated at the start of the sweep (it is soft: lagging it costs
-                // little convergence and saves three of its four evaluations).
-                force += self.bend_force[i];
-                stiff.add_assign(self.bend_stiffness[i]);
-                let slots =
-                    self.spring_slot_starts[i] as usize..self.spring_slot_starts[i + 1] as usize;
-                for slot in &self.spring_slots[slots] {
-                    let mut anchor = V3::<L<W>>::zero();
-                    let mut anchor_v = V3::<L<W>>::zero();
-                    let mut rest = L::<W>::splat(1.0);
-                    let mut on = zero;
-                    for l in 0..W {
-                        let s = slot[l];
-                        if s == u32::MAX {
-                            continue;
-                        }
-                        let spring = &state.springs[s as usize];
-                        let c = cup_start + s as usize;
-                        set3(&mut anchor, l, get3(&state.x[c], l));
-                        set3(&mut anchor_v, l, get3(&state.v[c], l));
-                        rest.0[l] = spring.rest.0[l];
-                        on.0[l] = spring.sealed.0[l];
-                    }
-                    // Lanes without this slot, and lip elements that let go, pull with nothing.
-                    let (ke, kd) = (p.spring[0] * on, p.spring[1] * on);
-                    let (f, kk) = spring_vertex(xi, anchor, vi, anchor_v, rest, ke, kd, inv_h);
-                    force += V3::select_lt(half, on, f, V3::zero());
-                    stiff.add_assign(kk.keep_lt(half, on));
-                }
-                // Contacts only change the lanes that touch (see the module docs of `solvers`).
-                if xi.y.0.iter().any(|&y| y < radius) {
-                    let gap = xi.y - rad;
-                    let (f, kk) = contact_vertex(gap, up, vi, ground, inv_h);
-                    force = V3::select_lt(gap, zero, force + f, force);
-                    stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), stiff);
-                }
-                if self.near_disc[i] {
-                    let (gap, f, kk, _) = self.disc_contact(
-                        state,
-                        p.disc_contact,
-                        i,
-                        com,
-                        q,
-                        disc_v,
-                        disc_w,
-                        rad,
-                        reach2,
-                        inv_h,
-                    );
-                    force = V3::select_lt(gap, zero, force + f, force);
-                    stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), stiff);
-                }
+                let (force, stiff) = self.vertex_system(&terms, state, i);
                 let dx = stiff.solve(force);
                 state.x[i] = keep(xi + dx, xi);
                 self.x_rate[i] = (state.x[i] - self.x_start[i]) * inv_h;

@@ -1,0 +1,102 @@
+//! The global-descent solver at 300 substeps per second against block descent at 1200 on a
+//! replay of a real recording: the calibrated real-film scene
+//! (configs/scenes/calibrated-coarse-real-film.toml) and the same scene on global descent
+//! (configs/scenes/global-coarse-real-film.toml) replay the first 2 s of a held-out recording;
+//! at every recorded frame the simulated marker sites of the two are compared with each other and
+//! with the recording.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use rlpkg_mocap::dataset::{Dataset, Split};
+use rlpkg_replay::{loss::chamfer_distance, Target};
+use rlpkg_sim::{Model, SceneConfig, Simulator, Solver};
+
+/// Root-mean-square distance between two point sets of equal length, point to point (m).
+fn rms(a: &[[f32; 3]], b: &[[f64; 3]]) -> f64 {
+    let sum: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(p, q)| (0..3).map(|k| (p[k] as f64 - q[k]).powi(2)).sum::<f64>())
+        .sum();
+    (sum / a.len() as f64).sqrt()
+}
+
+#[test]
+fn global_descent_at_300_hz_replays_a_recording_like_block_descent_at_1200_hz() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scene = |name: &str| SceneConfig::load(&root.join("configs/scenes").join(name)).unwrap();
+    let descent = scene("calibrated-coarse-real-film.toml");
+    let global = scene("global-coarse-real-film.toml");
+    assert_eq!(descent.integrator.solver, Solver::BlockDescent);
+    assert_eq!(global.integrator.solver, Solver::GlobalDescent);
+    assert_eq!(descent.params, global.params);
+    let data = Dataset::open(&root.join("data/deformable-sim-real")).unwrap();
+    let id = &data.ids(Some(Split::Test))[0];
+    let target = Target::new(
+        &data.load(id).unwrap(),
+        Some(2.0),
+        descent.disc.hold_at_recorded_start,
+    )
+    .unwrap();
+    let sim_of = |c: &SceneConfig| {
+        let spec = target.episode_spec(c.params, None);
+        Simulator::new(Arc::new(Model::new(c).unwrap()), vec![spec]).unwrap()
+    };
+    let (mut a, mut b) = (sim_of(&descent), sim_of(&global));
+    let (ea, eb) = (
+        a.embed(0, &target.initial_markers),
+        b.embed(0, &target.initial_markers),
+    );
+    let rest = descent.cups.rest_time_s as f64;
+    // Per frame: the two solvers' marker sites against each other (the same embedded sites, so
+    // point to point), each against the recorded markers (Chamfer) and the recorded object.
+    let (mut between, mut chamfer, mut object) = (0.0, [0.0; 2], [0.0; 2]);
+    for (k, &t) in target.times.iter().enumerate() {
+        for sim in [&mut a, &mut b] {
+            let substep = ((rest + t) / sim.dt() as f64).round() as u64;
+            sim.step(substep - sim.substep());
+        }
+        let sites = [a.surface_points(0, &ea), b.surface_points(0, &eb)];
+        let sites64: Vec<Vec<[f64; 3]>> = sites
+            .iter()
+            .map(|s| s.iter().map(|p| p.map(f64::from)).collect())
+            .collect();
+        between += rms(&sites[1], &sites64[0]).powi(2);
+        for (s, sim) in [&a, &b].into_iter().enumerate() {
+            chamfer[s] += chamfer_distance(&sites64[s], &target.markers[k]).unwrap();
+            let disc = sim.disc(0).position.map(f64::from);
+            object[s] += (0..3)
+                .map(|c| (disc[c] - target.object[k][c]).powi(2))
+                .sum::<f64>();
+        }
+    }
+    let frames = target.times.len() as f64;
+    let between = (between / frames).sqrt();
+    let chamfer = chamfer.map(|c| c / frames);
+    let object = object.map(|o| (o / frames).sqrt());
+    eprintln!(
+        "{id}, {frames} frames: global vs block descent markers {:.2} mm RMS; Chamfer to the recording {:.2} / {:.2} mm, object {:.2} / {:.2} mm RMS (block / global descent)",
+        between * 1e3,
+        chamfer[0] * 1e3,
+        chamfer[1] * 1e3,
+        object[0] * 1e3,
+        object[1] * 1e3
+    );
+    for sim in [&a, &b] {
+        assert!(sim.health_events().is_empty(), "{:?}", sim.health_events());
+    }
+    // Agreement within the coarse grid's cell (25 mm) between the solvers, global descent as close
+    // to the recorded markers as block descent, and its disc within 30 mm RMS of the recorded
+    // object (a disc that leaves the package, or a film that stretches, is off by decimetres).
+    // The scene's values were fitted at block descent's step: at this one its object error over
+    // these 2 s is about twice block descent's (20 vs 11 mm).
+    assert!(between < 0.02, "markers differ by {between} m RMS");
+    assert!(
+        chamfer[1] < chamfer[0] + 3e-3,
+        "Chamfer {} m vs {} m",
+        chamfer[1],
+        chamfer[0]
+    );
+    assert!(object[1] < 0.03, "object {} m RMS", object[1]);
+}
