@@ -763,6 +763,25 @@ fn cases() -> Vec<Case> {
             signal: None,
         },
         Case {
+            name: "a run's config.toml changed after training",
+            setup: |dir| {
+                let run = run_copy(dir);
+                edit(
+                    &run.join("config.toml"),
+                    "learning_rate = 1e-3",
+                    "learning_rate = 1e-4",
+                );
+                args(&["export", "run"])
+            },
+            code: 2,
+            words: &[
+                "config.toml",
+                "line 20 is `learning_rate = 1e-4`",
+                "trained with `learning_rate = 1e-3`",
+            ],
+            signal: None,
+        },
+        Case {
             name: "an f32 value echoed as written",
             setup: |dir| {
                 quick_scene(dir);

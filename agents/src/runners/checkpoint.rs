@@ -99,6 +99,10 @@ struct TrainerState {
     /// The environment's serialised state beyond reals and counters (simulator snapshots).
     #[serde(default)]
     env_bytes: Vec<u8>,
+    /// The configuration's text the run was trained with, so that a changed `config.toml` can be
+    /// named by its first differing line (absent in checkpoints of older versions).
+    #[serde(default)]
+    config_text: Option<String>,
 }
 
 fn bits(values: &[f64]) -> Vec<u64> {
@@ -305,6 +309,7 @@ impl Trainer {
             critic_obs: bits32(&self.buffers.critic_obs),
             final_critic_obs: bits32(&self.buffers.final_critic_obs),
             env_bytes: env.bytes,
+            config_text: Some(self.config_text.clone()),
         }
     }
 
@@ -415,15 +420,38 @@ fn read_state(
     let state: TrainerState = serde_json::from_slice(&json)
         .map_err(|e| checkpoint_error(&state_path, format!("malformed checkpoint state: {e}")))?;
     if state.config_hash != config_hash {
-        return Err(checkpoint_error(
-            &run_dir.join(CONFIG_FILE),
-            "differs from the configuration the checkpoint was trained with",
-        ));
+        let config_path = run_dir.join(CONFIG_FILE);
+        let now = std::fs::read_to_string(&config_path).unwrap_or_default();
+        let mut reason =
+            String::from("differs from the configuration the checkpoint was trained with");
+        if let Some(trained) = &state.config_text {
+            reason.push_str(&first_differing_line(trained, &now));
+        }
+        return Err(checkpoint_error(&config_path, reason));
     }
     if let Some(reason) = non_finite_state(&state) {
         return Err(checkpoint_error(&state_path, reason));
     }
     Ok((checkpoint, state_path, state))
+}
+
+/// Where `now` first departs from `trained`, as `: line N is `...`, trained with `...``.
+pub(super) fn first_differing_line(trained: &str, now: &str) -> String {
+    let mut trained_lines = trained.lines();
+    let mut now_lines = now.lines();
+    for line in 1.. {
+        match (trained_lines.next(), now_lines.next()) {
+            (Some(a), Some(b)) if a == b => continue,
+            (None, None) => break,
+            (a, b) => {
+                let shown =
+                    |l: Option<&str>| l.map_or("the end of the file".into(), |l| format!("`{l}`"));
+                return format!(": line {line} is {}, trained with {}", shown(b), shown(a));
+            }
+        }
+    }
+    // Same lines, different bytes (line endings or a final newline).
+    String::from(": the lines are the same but the line endings differ")
 }
 
 /// What in `state` no run could have written: a learning rate that is not a finite number >= 0,

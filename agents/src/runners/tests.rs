@@ -237,6 +237,25 @@ fn bad_run_folders_are_reported() {
         err.to_string().contains("differs from the configuration"),
         "{err}"
     );
+    assert!(
+        err.to_string()
+            .contains("is `seed = 5`, trained with `seed = 1`"),
+        "{err}"
+    );
+}
+
+#[test]
+fn first_differing_line_names_the_line_and_both_texts() {
+    use super::checkpoint::first_differing_line;
+    assert_eq!(
+        first_differing_line("a = 1\nb = 2\n", "a = 1\nb = 3\n"),
+        ": line 2 is `b = 3`, trained with `b = 2`"
+    );
+    assert_eq!(
+        first_differing_line("a = 1\n", "a = 1\nc = 4\n"),
+        ": line 2 is `c = 4`, trained with the end of the file"
+    );
+    assert!(first_differing_line("a = 1\n", "a = 1").contains("line endings"));
 }
 
 #[test]
