@@ -79,6 +79,9 @@ pub enum Split {
     Train,
     /// Held out for evaluation.
     Test,
+    /// Kept in the dataset but in neither train nor test (a failure take, see
+    /// [`ManifestEntry::failure`]).
+    Excluded,
 }
 
 impl std::str::FromStr for Split {
@@ -128,6 +131,9 @@ pub struct ManifestEntry {
     /// line boundary is noticed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_rows: Option<usize>,
+    /// The take failed (e.g. the suction seal let go); such a take is in split `excluded`.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub failure: bool,
 }
 
 impl ManifestEntry {
