@@ -78,8 +78,12 @@ fn from_manifest(args: FromManifestArgs) -> anyhow::Result<()> {
     }
     let (text, assumptions) = render(&description, &built, &base_name, &command)?;
     // The file must load as it is written: check the text itself, then write it whole.
-    SceneConfig::from_toml_str(&text, &args.out.display().to_string())
-        .map_err(|e| anyhow::anyhow!("the generated scene does not load: {e}"))?;
+    SceneConfig::from_toml_str(&text, &args.out.display().to_string()).map_err(|e| {
+        input_error(format!(
+            "{}: the scene built from it and --base {base_name} does not load ({e}); expected manifest values that fit the base scene's",
+            args.manifest.display()
+        ))
+    })?;
     crate::files::write_atomic(&args.out, text.as_bytes()).map_err(input_error)?;
     println!(
         "wrote {}: grid {} x {} ({} particles per layer; marker sites on vertices within {:.3} mm), {} cups on a {} m circle, film {} kg, disc {} x {} m; {} values marked as assumptions (from {base_name})",
