@@ -284,7 +284,8 @@ fn bad_manifests_exit_2_naming_file_and_key_and_leave_the_output_alone() {
     let dir = tempfile::tempdir().unwrap();
     let scene_out = dir.path().join("scene.toml");
     fs::write(&scene_out, "sentinel").unwrap();
-    let cases: Vec<(&str, Box<dyn FnOnce(&mut Value)>, &str)> = vec![
+    type Edit = Box<dyn FnOnce(&mut Value)>;
+    let cases: Vec<(&str, Edit, &str)> = vec![
         (
             "missing-key.json",
             Box::new(|v: &mut Value| {

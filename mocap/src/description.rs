@@ -633,7 +633,8 @@ mod tests {
     #[test]
     fn errors_name_the_key() {
         let path = Path::new("m.json");
-        let cases: [(&str, fn(&mut Value)); 5] = [
+        type Edit = fn(&mut Value);
+        let cases: [(&str, Edit); 5] = [
             ("package.size_x_m: missing", |v| {
                 v["package"].as_object_mut().unwrap().remove("size_x_m");
             }),
