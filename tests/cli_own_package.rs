@@ -120,6 +120,23 @@ fn check_import(dataset_dir: &Path) {
         // Both takes load back whole (the loader checks frames and rows against the entry).
         let trajectory = dataset.load(&entry.id).unwrap();
         assert_eq!(trajectory.tool.t.len(), entry.frames);
+        // The outermost sites' distance to the package's edges, along mocap x (robot x, the
+        // 0.3048 m side) and mocap z (robot -y, the 0.254 m side), for the replay's placement.
+        let layout = manifest["package"]["markers"]["layout"].as_array().unwrap();
+        let min_x = layout
+            .iter()
+            .map(|s| number(&s["x"]))
+            .fold(f64::MAX, f64::min);
+        let max_y = layout
+            .iter()
+            .map(|s| number(&s["y"]))
+            .fold(f64::MIN, f64::max);
+        let inset = trajectory
+            .meta
+            .marker_inset_m
+            .expect("marker_inset_m in meta.toml");
+        assert!((inset[0] - (min_x + number(&manifest["package"]["size_x_m"]) / 2.0)).abs() < 1e-9);
+        assert!((inset[1] - (number(&manifest["package"]["size_y_m"]) / 2.0 - max_y)).abs() < 1e-9);
     }
     let text = fs::read_to_string(dataset_dir.join("manifest.toml")).unwrap();
     assert!(

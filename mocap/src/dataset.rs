@@ -326,6 +326,15 @@ pub struct Meta {
     /// Package markers seen in the first recorded frame (m, world frame), used to place the package.
     #[serde(deserialize_with = "rlpkg_toml_input::list")]
     pub initial_marker_positions_m: Vec<[f64; 3]>,
+    /// How far the outermost markers sit inside the package's edges at the smallest world x and z
+    /// (m); a replay places the package's corner that far beyond the outermost initial markers.
+    /// Absent: the markers lie on the edges (the study's dataset).
+    #[serde(
+        default,
+        deserialize_with = "rlpkg_toml_input::option",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub marker_inset_m: Option<[f64; 2]>,
 }
 
 /// Recorded end-effector (suction tool) motion, one row per frame.

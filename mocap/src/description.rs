@@ -314,6 +314,32 @@ impl PackageDescription {
         self.takes.iter().find(|t| t.id == id)
     }
 
+    /// How far the outermost marker sites lie inside the package's edges at the smallest mocap x
+    /// and z (m), for a package lying flat with its axes along the robot's (its initial pose) and
+    /// a transform that maps the robot's horizontal axes onto mocap x and z; none otherwise.
+    pub fn marker_inset_m(&self) -> Option<[f64; 2]> {
+        let p = &self.package;
+        let inset = |row: [f64; 3]| {
+            // Mocap coordinate = sign * robot coordinate along one horizontal robot axis.
+            let axis = (0..2).find(|&a| row[a].abs() == 1.0)?;
+            if row.iter().enumerate().any(|(b, v)| b != axis && *v != 0.0) {
+                return None;
+            }
+            let (sign, half) = match axis {
+                0 => (row[0], p.size_x_m / 2.0),
+                _ => (row[1], p.size_y_m / 2.0),
+            };
+            let nearest = p
+                .markers
+                .iter()
+                .map(|m| sign * if axis == 0 { m.x } else { m.y })
+                .fold(f64::INFINITY, f64::min);
+            Some(nearest + half)
+        };
+        let r = self.mocap_from_robot.rotation;
+        Some([inset(r[0])?, inset(r[2])?])
+    }
+
     /// Class label of an object mass: "low" / "medium" / "high" by rank among `object.masses_lb`
     /// when it lists three masses, none otherwise.
     pub fn mass_class(&self, mass_lb: f64) -> Option<String> {
@@ -627,6 +653,9 @@ mod tests {
         assert_eq!(d.package.markers.len(), 40);
         assert_eq!(d.tool.cup_angles_deg, vec![45.0, 135.0, 225.0, 315.0]);
         assert_eq!(d.mass_class(0.75).as_deref(), Some("medium"));
+        // Sites at x = -5.2 in of a 12 in side, y = +4.2 in of a 10 in side (robot y = mocap -z).
+        let inset = d.marker_inset_m().unwrap();
+        assert!((inset[0] - 0.8 * 0.0254).abs() < 1e-9 && (inset[1] - 0.8 * 0.0254).abs() < 1e-9);
         assert!((d.take("a30_m1.0_low").unwrap().object_mass_kg - KG_PER_LB).abs() < 1e-5);
     }
 

@@ -122,6 +122,11 @@ pub struct PackageConfig {
     pub object_diameter_m: f64,
     /// Object body mass without added weights, kg.
     pub object_body_mass_kg: f64,
+    /// How far the outermost markers sit inside the package's edges at the smallest mocap x and
+    /// z (m), written to every `meta.toml` (replays place the package by it); `--manifest` sets
+    /// it from the marker layout. Absent: markers on the edges.
+    #[serde(deserialize_with = "rlpkg_toml_input::option")]
+    pub marker_inset_m: Option<[f64; 2]>,
 }
 
 impl Default for PackageConfig {
@@ -131,6 +136,7 @@ impl Default for PackageConfig {
             mass_kg: 0.03,
             object_diameter_m: 0.16,
             object_body_mass_kg: 0.2268,
+            marker_inset_m: None,
         }
     }
 }
@@ -260,6 +266,18 @@ impl ImportConfig {
                 return Err(format!("{key} = {value}: expected a number {range}"));
             }
         }
+        if let Some(inset) = self.package.marker_inset_m {
+            let size = self.package.size_m[0].min(self.package.size_m[1]);
+            if inset
+                .iter()
+                .any(|v| !(v.is_finite() && *v >= 0.0 && *v < size / 2.0))
+            {
+                return Err(format!(
+                    "package.marker_inset_m = {inset:?}: expected 2 numbers in [0, {}) m (half the smaller side)",
+                    size / 2.0
+                ));
+            }
+        }
         if c.tool_to_cup_m
             .iter()
             .any(|v| !v.is_finite() || v.abs() > 1.0)
@@ -290,15 +308,19 @@ impl ImportConfig {
         Ok(())
     }
 
-    /// Sets the `[takes]` entries of `ids` from a collection's `manifest.json`: split (train,
-    /// test, or `excluded` with the failure flag for a failure take), object mass, mass class,
-    /// speed and placement angle. A take the manifest does not list, or that the config's
-    /// `[takes]` also lists, is an error (one source per take).
-    pub fn set_takes_from(
+    /// Takes from a collection's `manifest.json` the `[takes]` entries of `ids` (split: train,
+    /// test, or `excluded` with the failure flag for a failure take; object mass, mass class,
+    /// speed and placement angle) and, unless the config gives it, `package.marker_inset_m` from
+    /// the marker layout. A take the manifest does not list, or that the config's `[takes]` also
+    /// lists, is an error (one source per take).
+    pub fn apply_description(
         &mut self,
         description: &PackageDescription,
         ids: &[String],
     ) -> Result<(), String> {
+        if self.package.marker_inset_m.is_none() {
+            self.package.marker_inset_m = description.marker_inset_m();
+        }
         for id in ids {
             let Some(take) = description.take(id) else {
                 return Err(format!(
@@ -820,6 +842,7 @@ pub fn convert_with_robot(
         total_mass_kg: config.package.mass_kg + object_total_mass_kg,
         initial_suction_cup_position_m: std::array::from_fn(|i| tool_track.position[0][i] + cup[i]),
         initial_marker_positions_m: initial_markers,
+        marker_inset_m: config.package.marker_inset_m,
     };
     let entry = ManifestEntry {
         id: id.to_string(),
@@ -1174,6 +1197,14 @@ mod tests {
         let msg = ImportConfig::load(&path).unwrap_err().to_string();
         assert!(
             msg.contains("cleaning.marker_cutoff_hz = -2: expected a number >= 0"),
+            "{msg}"
+        );
+        std::fs::write(&path, "[package]\nmarker_inset_m = [0.02, 0.2]\n").unwrap();
+        let msg = ImportConfig::load(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains(
+                "package.marker_inset_m = [0.02, 0.2]: expected 2 numbers in [0, 0.127) m"
+            ),
             "{msg}"
         );
         std::fs::write(

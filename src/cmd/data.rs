@@ -86,7 +86,7 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
     }
     if let Some(description) = &description {
         config
-            .set_takes_from(description, &ids)
+            .apply_description(description, &ids)
             .map_err(|message| input_error(format!("{}: {message}", args.config.display())))?;
     }
     for id in &ids {
