@@ -37,6 +37,9 @@ enum Command {
     /// Import and clean motion-capture data.
     #[command(subcommand)]
     Data(cmd::data::DataCommand),
+    /// Build scene configs (e.g. from a package's manifest.json).
+    #[command(subcommand)]
+    Scene(cmd::scene::SceneCommand),
     /// Benchmarks that print throughput figures.
     #[command(subcommand)]
     Bench(cmd::bench::BenchCommand),
@@ -60,6 +63,7 @@ fn main() {
         Command::Calibrate(args) => cmd::calibrate::run(args),
         Command::Posterior(args) => cmd::posterior::run(args),
         Command::Data(command) => cmd::data::run(command),
+        Command::Scene(command) => cmd::scene::run(command),
         Command::Bench(command) => cmd::bench::run(command),
     };
     if let Err(err) = result {

@@ -82,6 +82,9 @@ pub enum Split {
     Train,
     /// Held out for evaluation.
     Test,
+    /// Kept in the dataset but in neither train nor test (a failure take, see
+    /// [`ManifestEntry::failure`]).
+    Excluded,
 }
 
 impl std::str::FromStr for Split {
@@ -131,6 +134,9 @@ pub struct ManifestEntry {
     /// line boundary is noticed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_rows: Option<usize>,
+    /// The take failed (e.g. the suction seal let go); such a take is in split `excluded`.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub failure: bool,
 }
 
 impl ManifestEntry {
@@ -358,6 +364,15 @@ pub struct Meta {
     /// Package markers seen in the first recorded frame (m, world frame), used to place the package.
     #[serde(deserialize_with = "rlpkg_toml_input::list")]
     pub initial_marker_positions_m: Vec<[f64; 3]>,
+    /// How far the outermost markers sit inside the package's edges at the smallest world x and z
+    /// (m); a replay places the package's corner that far beyond the outermost initial markers.
+    /// Absent: the markers lie on the edges (the study's dataset).
+    #[serde(
+        default,
+        deserialize_with = "rlpkg_toml_input::option",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub marker_inset_m: Option<[f64; 2]>,
 }
 
 /// Recorded end-effector (suction tool) motion, one row per frame.

@@ -24,6 +24,7 @@ use crate::dataset::{
     DataError, ManifestEntry, MarkerFrames, Meta, ObjectTrack, Split, ToolTrack, Trajectory,
 };
 use crate::derivative::{angular_velocity, gradient};
+use crate::description::{PackageDescription, TakeRole};
 use crate::motive::{self, MarkerKind, MotiveError, MotiveTake};
 use crate::robot::{
     self, covered_frames, read_robot, RigidTransform, RobotConfig, RobotTrajectory,
@@ -121,6 +122,11 @@ pub struct PackageConfig {
     pub object_diameter_m: f64,
     /// Object body mass without added weights, kg.
     pub object_body_mass_kg: f64,
+    /// How far the outermost markers sit inside the package's edges at the smallest mocap x and
+    /// z (m), written to every `meta.toml` (replays place the package by it); `--manifest` sets
+    /// it from the marker layout. Absent: markers on the edges.
+    #[serde(deserialize_with = "rlpkg_toml_input::option")]
+    pub marker_inset_m: Option<[f64; 2]>,
 }
 
 impl Default for PackageConfig {
@@ -130,6 +136,7 @@ impl Default for PackageConfig {
             mass_kg: 0.03,
             object_diameter_m: 0.16,
             object_body_mass_kg: 0.2268,
+            marker_inset_m: None,
         }
     }
 }
@@ -141,8 +148,11 @@ impl Default for PackageConfig {
 pub struct TakeConfig {
     /// Train or test (needed unless the take is excluded).
     pub split: Option<Split>,
-    /// Clean and report the take but do not write it (e.g. a failed grasp); false if not given.
+    /// Clean and report the take but do not write it; false if not given.
     pub exclude: Option<bool>,
+    /// A failure take (e.g. the suction seal let go): written, flagged, and in split `excluded`
+    /// (out of train and test); false if not given.
+    pub failure: Option<bool>,
     /// Object mass including weights (kg).
     pub object_total_mass_kg: Option<f64>,
     /// Mass class label.
@@ -158,10 +168,13 @@ pub struct TakeConfig {
 /// The manifest fields of one take, resolved from its `[takes]` entry and `[default_take]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TakeSettings {
-    /// Train or test (train for an excluded take that gives none; it is not written).
+    /// Train or test (train for an excluded take that gives none; it is not written); `excluded`
+    /// for a failure take.
     pub split: Split,
     /// Not written to the dataset.
     pub exclude: bool,
+    /// A failure take (written, flagged, split `excluded`).
+    pub failure: bool,
     /// Object mass including weights (kg).
     pub object_total_mass_kg: f64,
     /// Mass class label.
@@ -253,6 +266,18 @@ impl ImportConfig {
                 return Err(format!("{key} = {value}: expected a number {range}"));
             }
         }
+        if let Some(inset) = self.package.marker_inset_m {
+            let size = self.package.size_m[0].min(self.package.size_m[1]);
+            if inset
+                .iter()
+                .any(|v| !(v.is_finite() && *v >= 0.0 && *v < size / 2.0))
+            {
+                return Err(format!(
+                    "package.marker_inset_m = {inset:?}: expected 2 numbers in [0, {}) m (half the smaller side)",
+                    size / 2.0
+                ));
+            }
+        }
         if c.tool_to_cup_m
             .iter()
             .any(|v| !v.is_finite() || v.abs() > 1.0)
@@ -283,6 +308,60 @@ impl ImportConfig {
         Ok(())
     }
 
+    /// Takes from a collection's `manifest.json` the `[takes]` entries of `ids` (split: train,
+    /// test, or `excluded` with the failure flag for a failure take; object mass, mass class,
+    /// speed and placement angle) and, unless the config gives it, `package.marker_inset_m` from
+    /// the marker layout. A take the manifest does not list, or that the config's `[takes]` also
+    /// lists, is an error (one source per take).
+    pub fn apply_description(
+        &mut self,
+        description: &PackageDescription,
+        ids: &[String],
+    ) -> Result<(), String> {
+        if self.package.marker_inset_m.is_none() {
+            self.package.marker_inset_m = description.marker_inset_m();
+        }
+        for id in ids {
+            let Some(take) = description.take(id) else {
+                return Err(format!(
+                    "{}: trajectories: no take {id:?}; expected one of: {}",
+                    description.path.display(),
+                    description
+                        .takes
+                        .iter()
+                        .map(|t| t.id.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            };
+            if self.takes.contains_key(id) {
+                return Err(format!(
+                    "takes.\"{id}\": also given by {}; expected the take's split and masses from one source (drop the [takes] entry or --manifest)",
+                    description.path.display()
+                ));
+            }
+            let (split, failure) = match take.role {
+                TakeRole::Train => (Split::Train, false),
+                TakeRole::Test => (Split::Test, false),
+                TakeRole::Failure => (Split::Excluded, true),
+            };
+            self.takes.insert(
+                id.clone(),
+                TakeConfig {
+                    split: Some(split),
+                    exclude: None,
+                    failure: Some(failure),
+                    object_total_mass_kg: Some(take.object_mass_kg),
+                    mass: description.mass_class(take.object_mass_lb),
+                    mass_lb: Some(take.object_mass_lb),
+                    velocity: Some(take.speed.clone()),
+                    orientation: Some(format!("{}", take.placement_angle_deg)),
+                },
+            );
+        }
+        Ok(())
+    }
+
     /// The manifest fields of take `id`: its `[takes]` entry, completed by `[default_take]`. An
     /// unlisted take without a `[default_take]`, or a needed field that neither gives, is an error
     /// naming the key.
@@ -305,12 +384,19 @@ impl ImportConfig {
         } else {
             " (and [default_take] gives none)"
         };
+        let failure = own.failure.or(default.failure).unwrap_or(false);
         let split = match own.split.or(default.split) {
+            Some(Split::Train | Split::Test) if failure => {
+                return Err(format!(
+                    "{key}: a failure take (failure = true) stays out of train and test; expected no split or split = \"excluded\""
+                ))
+            }
             Some(split) => split,
+            None if failure => Split::Excluded,
             None if exclude => Split::Train,
             None => {
                 return Err(format!(
-                    "{key}.split is missing{fallback}; expected \"train\" or \"test\""
+                    "{key}.split is missing{fallback}; expected \"train\", \"test\" or \"excluded\""
                 ))
             }
         };
@@ -325,6 +411,7 @@ impl ImportConfig {
         Ok(TakeSettings {
             split,
             exclude,
+            failure,
             object_total_mass_kg,
             mass: own.mass.clone().or_else(|| default.mass.clone()),
             mass_lb: own.mass_lb.or(default.mass_lb),
@@ -371,6 +458,8 @@ pub struct RetentionReport {
     pub robot: Option<RobotFit>,
     /// Written to the dataset (false for takes excluded in the config).
     pub written: bool,
+    /// A failure take (written with split `excluded`).
+    pub failure: bool,
 }
 
 /// The robot-to-mocap transform used for a take imported with its robot file.
@@ -399,10 +488,11 @@ impl fmt::Display for RetentionReport {
             self.frames_total,
             percent(self.frames_kept, self.frames_total),
             self.sample_rate_hz,
-            if self.written {
-                ""
-            } else {
-                " [excluded by config, not written]"
+            match (self.written, self.failure) {
+                (false, _) => " [excluded by config, not written]",
+                (true, true) =>
+                    " [failure take: written with split \"excluded\", out of train and test]",
+                (true, false) => "",
             }
         )?;
         writeln!(
@@ -752,6 +842,7 @@ pub fn convert_with_robot(
         total_mass_kg: config.package.mass_kg + object_total_mass_kg,
         initial_suction_cup_position_m: std::array::from_fn(|i| tool_track.position[0][i] + cup[i]),
         initial_marker_positions_m: initial_markers,
+        marker_inset_m: config.package.marker_inset_m,
     };
     let entry = ManifestEntry {
         id: id.to_string(),
@@ -766,6 +857,7 @@ pub fn convert_with_robot(
         markers_per_frame_min: Some(markers_per_frame.0),
         markers_per_frame_max: Some(markers_per_frame.1),
         marker_rows: Some(counts.iter().sum()),
+        failure: settings.failure,
     };
     let include = !settings.exclude;
     let report = RetentionReport {
@@ -788,6 +880,7 @@ pub fn convert_with_robot(
         unfiltered_samples: cleaned.unfiltered_samples,
         robot: robot_fit,
         written: include,
+        failure: settings.failure,
     };
     let trajectory = Trajectory {
         id: id.to_string(),
@@ -1104,6 +1197,14 @@ mod tests {
         let msg = ImportConfig::load(&path).unwrap_err().to_string();
         assert!(
             msg.contains("cleaning.marker_cutoff_hz = -2: expected a number >= 0"),
+            "{msg}"
+        );
+        std::fs::write(&path, "[package]\nmarker_inset_m = [0.02, 0.2]\n").unwrap();
+        let msg = ImportConfig::load(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains(
+                "package.marker_inset_m = [0.02, 0.2]: expected 2 numbers in [0, 0.127) m"
+            ),
             "{msg}"
         );
         std::fs::write(

@@ -1,9 +1,11 @@
 //! Motion-capture data for rlpkg: the dataset format (manifest + per-trajectory CSVs + meta), and the
-//! import and cleaning of OptiTrack Motive CSV exports, and robot trajectory files as the tool track.
+//! import and cleaning of OptiTrack Motive CSV exports, robot trajectory files as the tool track, and
+//! a take collection's `manifest.json` (geometry, layout and split).
 
 pub mod clean;
 pub mod dataset;
 pub mod derivative;
+pub mod description;
 pub mod import;
 pub mod motive;
 pub mod robot;

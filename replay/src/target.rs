@@ -76,12 +76,17 @@ impl Target {
             .position
             .first()
             .ok_or_else(|| fail("no object position".into()))?;
-        let placement = Placement::from_markers(
+        let mut placement = Placement::from_markers(
             &initial_markers,
             f32s(&meta.initial_suction_cup_position_m),
             f32s(first_object),
         )
         .map_err(|e| fail(e.to_string()))?;
+        // Markers set in from the edges: the package's corner lies that far beyond them.
+        if let Some([dx, dz]) = meta.marker_inset_m {
+            placement.package_origin[0] -= dx as f32;
+            placement.package_origin[2] -= dz as f32;
+        }
         let placement = if hold_disc {
             placement.holding_disc_at(f32s(first_object))
         } else {

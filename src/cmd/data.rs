@@ -6,8 +6,9 @@ use clap::{Args, Subcommand};
 use rayon::prelude::*;
 use rlpkg_mocap::clean::{percent, MarkerRetention};
 use rlpkg_mocap::dataset::{clean_leftovers, write_manifest};
+use rlpkg_mocap::description::PackageDescription;
 use rlpkg_mocap::import::{import_take_with_robot, take_id, ImportConfig, ImportedTake};
-use rlpkg_mocap::{DataError, Dataset, ManifestEntry};
+use rlpkg_mocap::{DataError, Dataset, ManifestEntry, Split};
 
 use crate::error::input_error;
 
@@ -40,6 +41,12 @@ pub struct ImportMotiveArgs {
     /// estimated from the Motive tool rigid body), becomes the tool track.
     #[arg(long, num_args = 1..)]
     pub robot: Vec<PathBuf>,
+    /// The take collection's manifest.json (e.g. data/packages-v1/manifest.json): each take's
+    /// split, failure flag, object mass, speed and placement angle come from it instead of the
+    /// config's [takes]. Failure takes are written with split "excluded" and `failure = true`,
+    /// out of train and test.
+    #[arg(long, value_name = "FILE")]
+    pub manifest: Option<PathBuf>,
 }
 
 /// Runs a data subcommand.
@@ -53,7 +60,13 @@ pub fn run(command: DataCommand) -> anyhow::Result<()> {
 const ROBOT_SUFFIX: &str = "_robot.csv";
 
 fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
-    let config = ImportConfig::load(&args.config).map_err(input_error)?;
+    let mut config = ImportConfig::load(&args.config).map_err(input_error)?;
+    let description = args
+        .manifest
+        .as_deref()
+        .map(PackageDescription::load)
+        .transpose()
+        .map_err(input_error)?;
     let mut ids: Vec<String> = Vec::new();
     for path in &args.takes {
         let id = take_id(path);
@@ -75,10 +88,17 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
                 path.display()
             )));
         }
-        config
-            .take(&id)
-            .map_err(|message| input_error(format!("{}: {message}", args.config.display())))?;
         ids.push(id);
+    }
+    if let Some(description) = &description {
+        config
+            .apply_description(description, &ids)
+            .map_err(|message| input_error(format!("{}: {message}", args.config.display())))?;
+    }
+    for id in &ids {
+        config
+            .take(id)
+            .map_err(|message| input_error(format!("{}: {message}", args.config.display())))?;
     }
     let robots = pair_robot_files(&ids, &args.robot)?;
     if args.out.exists() && !args.out.is_dir() {
@@ -128,6 +148,19 @@ fn import_motive(args: ImportMotiveArgs) -> anyhow::Result<()> {
         frames_total += take.report.frames_total;
         frames_kept += take.report.frames_kept;
     }
+    let written_in = |split: Split| {
+        imported
+            .iter()
+            .filter(|t| t.include && t.entry.split == split)
+            .count()
+    };
+    println!(
+        "split: {} train, {} test, {} excluded (failure takes, written and flagged), {} not written",
+        written_in(Split::Train),
+        written_in(Split::Test),
+        written_in(Split::Excluded),
+        imported.iter().filter(|t| !t.include).count()
+    );
     println!(
         "total over {} take(s): frames kept {frames_kept} of {frames_total} ({:.1} %); marker samples kept {} of {} ({:.1} %), written incl. filled {} ({:.1} %)",
         imported.len(),

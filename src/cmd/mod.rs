@@ -6,5 +6,6 @@ pub mod data;
 pub mod eval;
 pub mod export;
 pub mod posterior;
+pub mod scene;
 pub mod simulate;
 pub mod train;

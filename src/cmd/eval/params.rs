@@ -288,6 +288,7 @@ fn split_name(split: Split) -> &'static str {
     match split {
         Split::Train => "train",
         Split::Test => "test",
+        Split::Excluded => "excluded",
     }
 }
 
