@@ -45,8 +45,23 @@ enum Command {
     Bench(cmd::bench::BenchCommand),
 }
 
+/// Lets every option that takes a value take a negative number, so that `--seconds -1` reaches the
+/// option's own check (which names the option and the expected range) instead of being read as an
+/// unknown flag `-1`.
+fn negative_numbers_as_values(command: clap::Command) -> clap::Command {
+    command
+        .mut_args(|arg| {
+            if arg.get_action().takes_values() {
+                arg.allow_negative_numbers(true)
+            } else {
+                arg
+            }
+        })
+        .mut_subcommands(negative_numbers_as_values)
+}
+
 fn main() {
-    let matches = Cli::command().get_matches();
+    let matches = negative_numbers_as_values(Cli::command()).get_matches();
     let mut cli = Cli::from_arg_matches(&matches).unwrap_or_else(|err| err.exit());
     if let (Command::Eval(args), Some(("eval", given))) = (&mut cli.command, matches.subcommand()) {
         args.given = cmd::eval::TRANSPORT_OPTIONS

@@ -10,49 +10,8 @@ use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-const TINY_CARTPOLE: &str = r#"
-[run]
-env = "CartPole-v1"
-num_envs = 4
-seed = 3
-total_steps = 1024
-checkpoint_every = 1
-
-[ppo]
-rollout_steps = 64
-epochs = 1
-minibatches = 2
-gamma = 0.99
-gae_lambda = 0.95
-clip_ratio = 0.2
-clip_value_loss = true
-value_coef = 0.5
-entropy_coef = 0.01
-max_grad_norm = 0.5
-learning_rate = 1e-3
-lr_schedule = "linear"
-desired_kl = 0.01
-normalize_advantages = true
-adam_epsilon = 1e-5
-
-[policy]
-actor_hidden = [16, 16]
-critic_hidden = [16, 16]
-activation = "tanh"
-init_log_std = 0.0
-action_transform = "clip"
-
-[normalization]
-observations = true
-rewards = true
-clip_obs = 10.0
-clip_reward = 10.0
-epsilon = 1e-8
-"#;
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
+mod common;
+use common::{args, copy_dir, edit, repo, TINY_CARTPOLE};
 
 fn dataset() -> String {
     repo()
@@ -65,23 +24,6 @@ fn rlpkg(args: &[String], dir: &Path) -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_rlpkg"));
     command.args(args).current_dir(dir);
     command
-}
-
-fn args(list: &[&str]) -> Vec<String> {
-    list.iter().map(|s| s.to_string()).collect()
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), &target).unwrap();
-        }
-    }
 }
 
 /// Every file and folder under `dir` with its bytes (folders: empty).
@@ -97,12 +39,6 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         }
     }
     files
-}
-
-fn edit(path: &Path, from: &str, to: &str) {
-    let text = std::fs::read_to_string(path).unwrap();
-    assert!(text.contains(from), "{} lacks {from}", path.display());
-    std::fs::write(path, text.replace(from, to)).unwrap();
 }
 
 /// A CartPole run trained once (4 updates, exported) for every case that needs one.
@@ -524,6 +460,16 @@ fn cases() -> Vec<Case> {
             signal: None,
         },
         Case {
+            name: "--profile on a CartPole run",
+            setup: |dir| {
+                run_copy(dir);
+                args(&["eval", "run", "--episodes", "2", "--profile", "1"])
+            },
+            code: 2,
+            words: &["--profile", "Transport-v0", "CartPole-v1"],
+            signal: None,
+        },
+        Case {
             name: "--trajectories on an ONNX CartPole policy",
             setup: |dir| {
                 run_copy(dir);
@@ -753,6 +699,16 @@ fn cases() -> Vec<Case> {
             },
             code: 2,
             words: &["a30_m0.5_high.csv", "not found"],
+            signal: None,
+        },
+        Case {
+            name: "a negative number for an option that takes one",
+            setup: |_| {
+                let take = repo().join("data/deformable-sim-real/HHHHH");
+                args(&["simulate", &take.display().to_string(), "--seconds", "-1"])
+            },
+            code: 2,
+            words: &["--seconds", "-1"],
             signal: None,
         },
         Case {

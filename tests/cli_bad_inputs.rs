@@ -8,49 +8,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-const TINY_CARTPOLE: &str = r#"
-[run]
-env = "CartPole-v1"
-num_envs = 4
-seed = 3
-total_steps = 1024
-checkpoint_every = 1
-
-[ppo]
-rollout_steps = 64
-epochs = 1
-minibatches = 2
-gamma = 0.99
-gae_lambda = 0.95
-clip_ratio = 0.2
-clip_value_loss = true
-value_coef = 0.5
-entropy_coef = 0.01
-max_grad_norm = 0.5
-learning_rate = 1e-3
-lr_schedule = "linear"
-desired_kl = 0.01
-normalize_advantages = true
-adam_epsilon = 1e-5
-
-[policy]
-actor_hidden = [16, 16]
-critic_hidden = [16, 16]
-activation = "tanh"
-init_log_std = 0.0
-action_transform = "clip"
-
-[normalization]
-observations = true
-rewards = true
-clip_obs = 10.0
-clip_reward = 10.0
-epsilon = 1e-8
-"#;
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
+mod common;
+use common::{args, copy_dir, edit, repo, TINY_CARTPOLE};
 
 fn trajectory() -> String {
     repo()
@@ -75,19 +34,6 @@ fn trained_run() -> &'static Path {
         (dir, run)
     })
     .1
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), &target).unwrap();
-        }
-    }
 }
 
 /// Copies the trained run to `dir/run` and returns `"run"`.
@@ -132,12 +78,6 @@ fn import_args() -> Vec<String> {
     ])
 }
 
-fn edit(path: &Path, from: &str, to: &str) {
-    let text = std::fs::read_to_string(path).unwrap();
-    assert!(text.contains(from), "{} lacks {from}", path.display());
-    std::fs::write(path, text.replace(from, to)).unwrap();
-}
-
 /// A folder nothing can be written into: a read-only folder, or (when running as root, which
 /// ignores permissions) a folder under /proc.
 fn read_only_folder(dir: &Path) -> String {
@@ -177,10 +117,6 @@ struct Case {
     setup: fn(&Path) -> Vec<String>,
     /// Texts the error message must contain.
     expected: &'static [&'static str],
-}
-
-fn args(list: &[&str]) -> Vec<String> {
-    list.iter().map(|s| s.to_string()).collect()
 }
 
 fn cases() -> Vec<Case> {

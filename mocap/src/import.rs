@@ -228,42 +228,53 @@ impl ImportConfig {
         self.cleaning.validate()?;
         self.robot.validate()?;
         let c = &self.conversion;
+        // (key, value, zero allowed, largest plausible value): a package on a conveyor, not a planet.
         let checks = [
             (
                 "conversion.motion_speed_threshold_m_s",
                 c.motion_speed_threshold_m_s,
-                true,
+                false,
+                100.0,
             ),
-            ("conversion.motion_margin_s", c.motion_margin_s, false),
+            (
+                "conversion.motion_margin_s",
+                c.motion_margin_s,
+                true,
+                3600.0,
+            ),
             (
                 "conversion.max_rigid_body_gap_s",
                 c.max_rigid_body_gap_s,
-                false,
+                true,
+                3600.0,
             ),
-            ("package.size_m[0]", self.package.size_m[0], true),
-            ("package.size_m[1]", self.package.size_m[1], true),
-            ("package.mass_kg", self.package.mass_kg, false),
+            ("package.size_m[0]", self.package.size_m[0], false, 10.0),
+            ("package.size_m[1]", self.package.size_m[1], false, 10.0),
+            ("package.mass_kg", self.package.mass_kg, true, 1000.0),
             (
                 "package.object_diameter_m",
                 self.package.object_diameter_m,
-                true,
+                false,
+                10.0,
             ),
             (
                 "package.object_body_mass_kg",
                 self.package.object_body_mass_kg,
-                false,
+                true,
+                1000.0,
             ),
         ];
-        for (key, value, strictly_positive) in checks {
-            let ok = value.is_finite()
-                && if strictly_positive {
-                    value > 0.0
-                } else {
-                    value >= 0.0
-                };
-            if !ok {
-                let range = if strictly_positive { "> 0" } else { ">= 0" };
-                return Err(format!("{key} = {value}: expected a number {range}"));
+        for (key, value, zero_allowed, max) in checks {
+            let above_zero = if zero_allowed {
+                value >= 0.0
+            } else {
+                value > 0.0
+            };
+            if !(value.is_finite() && above_zero && value <= max) {
+                let low = if zero_allowed { "[0" } else { "(0" };
+                return Err(format!(
+                    "{key} = {value}: expected a number in {low}, {max}]"
+                ));
             }
         }
         if let Some(inset) = self.package.marker_inset_m {
@@ -825,6 +836,23 @@ pub fn convert_with_robot(
             t_all[start]
         )));
     }
+    // Markers on another scale than the package (a take exported in metres but labelled
+    // millimetres, or the reverse) would convert without a word into a package 1000x off.
+    let spread = initial_markers
+        .iter()
+        .flat_map(|a| {
+            initial_markers
+                .iter()
+                .map(move |b| DVec3::from_array(*a).distance(DVec3::from_array(*b)))
+        })
+        .fold(0.0, f64::max);
+    let diagonal = config.package.size_m[0].hypot(config.package.size_m[1]);
+    if !(diagonal / 10.0..=diagonal * 3.0).contains(&spread) {
+        return Err(take_err(format!(
+            "the package markers of the first kept frame span {spread:.4} m, the package's diagonal \
+             (package.size_m) is {diagonal:.3} m; expected the same scale (check the take's 'Length Units')"
+        )));
+    }
     let counts: Vec<usize> = frames.iter().map(Vec::len).collect();
     let markers_per_frame = (*counts.iter().min().unwrap(), *counts.iter().max().unwrap());
 
@@ -1170,6 +1198,20 @@ mod tests {
                 assert!(dist(*a, *b) < 1e-9);
             }
         }
+    }
+
+    #[test]
+    fn markers_on_another_scale_than_the_package_are_refused() {
+        // The same take against a package a tenth of its size: as if its units were mislabelled.
+        let mut config = with_default_take();
+        config.package.size_m = [0.0254, 0.03048];
+        let err = import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("a30_m0.5_high_excerpt.csv.gz"), "{err}");
+        assert!(err.contains("expected the same scale"), "{err}");
+        assert!(err.contains("'Length Units'"), "{err}");
     }
 
     #[test]

@@ -12,6 +12,9 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
+/// Largest coordinate (m) a take may hold: far beyond any capture volume, far below a corrupted value.
+const MAX_COORDINATE_M: f64 = 1000.0;
+
 /// An error while reading a Motive export; the message names the file, line (and column) and what
 /// was expected.
 #[derive(Debug, Error)]
@@ -353,12 +356,31 @@ pub fn parse_take(text: &str, path: &Path) -> Result<MotiveTake, MotiveError> {
             }
         }
         time.push(t);
+        // A value no capture can hold (a corrupted export) is refused here, before the low-pass
+        // filter would spread it over its neighbours.
+        let bounded = |c: usize, limit: f64, what: &str| -> Result<Option<f64>, MotiveError> {
+            match number(c)? {
+                Some(v) if v.abs() > limit => {
+                    Err(err(line_no, Some(c + 1), format!("{v} is not {what}")))
+                }
+                value => Ok(value),
+            }
+        };
+        let coordinate_limit = MAX_COORDINATE_M / unit;
+        let coordinate = "a coordinate of a capture volume (within 1000 m)";
         for (c, slot) in slots.iter().enumerate() {
             match *slot {
                 Slot::Ignored => {}
-                Slot::RigidRotation(b, axis) => rigid_rot[b][axis] = number(c)?,
-                Slot::RigidPosition(b, axis) => rigid_pos[b][axis] = number(c)?,
-                Slot::MarkerPosition(m, axis) => marker_pos[m][axis] = number(c)?,
+                Slot::RigidRotation(b, axis) => {
+                    rigid_rot[b][axis] =
+                        bounded(c, 1.0 + 1e-3, "a quaternion component within [-1, 1]")?
+                }
+                Slot::RigidPosition(b, axis) => {
+                    rigid_pos[b][axis] = bounded(c, coordinate_limit, coordinate)?
+                }
+                Slot::MarkerPosition(m, axis) => {
+                    marker_pos[m][axis] = bounded(c, coordinate_limit, coordinate)?
+                }
             }
         }
         let partial = |line_no: usize, what: &str| {
@@ -724,6 +746,20 @@ Frame,Time (Seconds),X,Y,Z,W,X,Y,Z,,X,Y,Z,X,Y,Z\n\
         let msg = message(&text);
         assert!(
             msg.contains("take.csv: 1400 data rows of 0 rigid bodies and 100000 marker columns would need 4.2 GiB"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn values_no_capture_can_hold_name_line_and_column() {
+        let far = SMALL.replace("1,0.01,0,0,0,1,100,200,301", "1,0.01,0,0,0,1,100,1e300,301");
+        let msg = message(&far);
+        assert!(msg.contains("take.csv: line 9, column 8"), "{msg}");
+        assert!(msg.contains("within 1000 m"), "{msg}");
+        let rotation = SMALL.replace("1,0.01,0,0,0,1,100,200,301", "1,0.01,0,0,0,7,100,200,301");
+        let msg = message(&rotation);
+        assert!(
+            msg.contains("line 9, column 6: 7 is not a quaternion component"),
             "{msg}"
         );
     }

@@ -209,9 +209,13 @@ impl Default for RobotConfig {
 impl RobotConfig {
     /// Checks the keys; the message names the key and what was expected.
     pub fn validate(&self) -> Result<(), String> {
-        if !(self.max_fit_rms_m.is_finite() && self.max_fit_rms_m > 0.0) {
+        // Above 1 m the check would pass any file, including another take's.
+        if !(self.max_fit_rms_m.is_finite()
+            && self.max_fit_rms_m > 0.0
+            && self.max_fit_rms_m <= 1.0)
+        {
             return Err(format!(
-                "robot.max_fit_rms_m = {}: expected a number > 0",
+                "robot.max_fit_rms_m = {}: expected a number in (0, 1] m",
                 self.max_fit_rms_m
             ));
         }

@@ -94,7 +94,7 @@ pub struct EvalArgs {
 }
 
 /// The options (argument ids) that only an evaluation of the transport task reads.
-pub const TRANSPORT_OPTIONS: [&str; 3] = ["scripted", "recorded", "trajectories"];
+pub const TRANSPORT_OPTIONS: [&str; 4] = ["scripted", "profile", "recorded", "trajectories"];
 
 /// Runs `rlpkg eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {

@@ -132,20 +132,23 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     )
     .map_err(output_error)?;
     outcome.print(wall_s, &out);
+    // The scene's values and step are the user's: a replay they cannot carry is bad input (exit 2).
     if let Some((frame, t)) = outcome.non_finite {
-        anyhow::bail!(
-            "the simulation produced non-finite values at frame {frame} (recording time t = {t:.4} s); \
-             the files in {} stop at the frame before",
+        return Err(input_error(format!(
+            "{config_source}: the simulation produced non-finite values at frame {frame} (recording \
+             time t = {t:.4} s); expected a scene whose values and step carry this motion; the files \
+             in {} stop at the frame before",
             out.display()
-        );
+        )));
     }
     if let Some(event) = outcome.health {
-        anyhow::bail!(
-            "the simulation became unhealthy ({:?}) at recording time t = {:.4} s; the files in {} stop there",
+        return Err(input_error(format!(
+            "{config_source}: the simulation became unhealthy ({:?}) at recording time t = {:.4} s; \
+             expected a scene whose values and step carry this motion; the files in {} stop there",
             event.reason,
             event.time - replay.rest_s,
             out.display()
-        );
+        )));
     }
     Ok(())
 }
