@@ -370,7 +370,11 @@ pub fn parse_take(text: &str, path: &Path) -> Result<MotiveTake, MotiveError> {
         let coordinate = "a coordinate of a capture volume (within 1000 m)";
         for (c, slot) in slots.iter().enumerate() {
             match *slot {
-                Slot::Ignored => {}
+                // Unused columns (e.g. Mean Marker Error) must still hold numbers: anything else is
+                // a corrupted export.
+                Slot::Ignored => {
+                    number(c)?;
+                }
                 Slot::RigidRotation(b, axis) => {
                     rigid_rot[b][axis] =
                         bounded(c, 1.0 + 1e-3, "a quaternion component within [-1, 1]")?
