@@ -7,6 +7,7 @@ mod cmd;
 mod error;
 mod files;
 mod interrupt;
+mod overrides;
 mod render;
 mod tasks;
 

@@ -8,17 +8,20 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
+use rlpkg_agents::config::read_config_text;
 use rlpkg_agents::runners::{clean_leftovers, POLICY_FILE};
 use rlpkg_agents::TrainedPolicy;
 
 use crate::cmd::export::{export_policy, ExportOptions};
 use crate::error::{agent_error, input_error};
+use crate::overrides::{self, Override};
 use crate::tasks::Training;
 
 #[derive(Args)]
 #[command(
     after_help = "Examples:\n  rlpkg train configs/train/cartpole.toml\n  rlpkg train configs/train/pendulum.toml \
-                        --name pendulum-seed2\n  rlpkg train --resume runs/cartpole"
+                        --name pendulum-seed2\n  rlpkg train configs/train/cartpole.toml --name lr1e-4-seed3 \
+                        --set ppo.learning_rate=1e-4 --set run.seed=3\n  rlpkg train --resume runs/cartpole"
 )]
 pub struct TrainArgs {
     /// Training configuration (TOML), e.g. configs/cartpole.toml.
@@ -27,6 +30,12 @@ pub struct TrainArgs {
     /// Continue the run in this folder from its latest checkpoint.
     #[arg(long, value_name = "RUN_DIR")]
     pub resume: Option<PathBuf>,
+    /// Override one configuration value, e.g. --set ppo.learning_rate=1e-4 (repeatable). KEY is a
+    /// dotted key path (run.seed, policy.actor_hidden, transport.<key>); VALUE is TOML (1e-4, 3,
+    /// true, "tanh", [64, 64]) or a bare word taken as a string. The result is checked like the
+    /// file and stored as the run's config.toml; a resumed run keeps its own configuration.
+    #[arg(long = "set", value_name = "KEY=VALUE", conflicts_with = "resume")]
+    pub set: Vec<Override>,
     /// Run name; the run is written to <OUT_DIR>/<NAME> [default: the config file's stem].
     #[arg(long, value_parser = parse_run_name)]
     pub name: Option<String>,
@@ -55,7 +64,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             (trainer, run_dir.clone())
         }
         (None, Some(config_path)) => {
-            let training = Training::load(config_path).map_err(agent_error)?;
+            let training = load_training(config_path, &args.set)?;
             let name = match &args.name {
                 Some(name) => name.clone(),
                 None => default_name(config_path)?,
@@ -149,6 +158,32 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The training configuration at `path` with the `--set` overrides applied, checked like a file.
+/// A configuration that fails only with the overrides names the first `--set` that breaks it.
+fn load_training(path: &Path, sets: &[Override]) -> anyhow::Result<Training> {
+    if sets.is_empty() {
+        return Training::load(path).map_err(agent_error);
+    }
+    let text = read_config_text(path).map_err(agent_error)?;
+    let source = path.display().to_string();
+    let with_first = |n: usize| overrides::apply(&text, &source, &sets[..n]);
+    let err = match Training::parse(with_first(sets.len()).map_err(input_error)?, path) {
+        Ok(training) => return Ok(training),
+        Err(err) if err.is_input_error() => err,
+        Err(err) => return Err(agent_error(err)),
+    };
+    // Each prefix applies (the whole list did); the first one that fails is to blame.
+    let fails = |n: usize| with_first(n).map_or(true, |t| Training::parse(t, path).is_err());
+    let blamed = if fails(0) {
+        let all: Vec<String> = sets.iter().map(ToString::to_string).collect();
+        format!("with {}", all.join(" "))
+    } else {
+        let n = (1..=sets.len()).find(|&n| fails(n)).unwrap_or(sets.len());
+        sets[n - 1].to_string()
+    };
+    Err(input_error(format!("{blamed}: {err}")))
 }
 
 /// A run name is one plain folder name, so the run stays inside `--out-dir`.
