@@ -1,14 +1,15 @@
 //! `--set KEY=VALUE`: one value of a TOML configuration replaced (or added) on the command line,
 //! so that a sweep needs no rewritten files.
 //!
-//! The override edits the file's parsed document ([`toml_edit`], which keeps comments, key order
-//! and the formatting of everything it does not touch), and the edited text is then checked like
-//! any file: a run folder keeps it as its `config.toml`, readable and with exactly what was run.
+//! The overrides edit the file's parsed table ([`toml::Table`], the workspace's TOML crate: keys
+//! come back sorted and comments are dropped), and the merged table is written back as text that
+//! is then checked like any file. A run folder keeps that text as its `config.toml`,
+//! headed by a comment naming the file and the overrides, so it says exactly what was run.
 
 use std::fmt;
 use std::str::FromStr;
 
-use toml_edit::{DocumentMut, InlineTable, Item, Key, Table, TableLike, Value};
+use toml::{Table, Value};
 
 /// One `--set KEY=VALUE`: a dotted key path and the TOML value to put there.
 #[derive(Debug, Clone, PartialEq)]
@@ -16,16 +17,9 @@ pub struct Override {
     /// The option as given, e.g. `ppo.learning_rate=1e-4` (named in messages).
     given: String,
     /// The key path, e.g. `["ppo", "learning_rate"]`.
-    path: Vec<Key>,
+    path: Vec<String>,
     /// The value, e.g. `1e-4`.
     value: Value,
-}
-
-impl Override {
-    /// The option as given (`KEY=VALUE`).
-    pub fn given(&self) -> &str {
-        &self.given
-    }
 }
 
 impl fmt::Display for Override {
@@ -45,15 +39,20 @@ impl FromStr for Override {
         let (key, value) = given
             .split_once('=')
             .ok_or_else(|| format!("`{given}`: no `=`; {expected}"))?;
-        if key.trim().is_empty() {
+        let key = key.trim();
+        if key.is_empty() {
             return Err(format!("`{given}`: no key before `=`; {expected}"));
         }
-        let path = Key::parse(key.trim()).map_err(|e| {
-            let reason = e.message().trim_end();
-            format!("`{given}`: `{key}` is not a TOML key ({reason}); {expected}")
+        let path = parse_key(key).ok_or_else(|| {
+            format!("`{given}`: `{key}` is not a TOML key (dotted bare or quoted keys); {expected}")
         })?;
         let value = value.trim();
-        let value = Value::from_str(value).unwrap_or_else(|_| Value::from(value));
+        // A line `v = VALUE` parses exactly the values a file may hold.
+        let value = format!("v = {value}")
+            .parse::<Table>()
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .unwrap_or_else(|| Value::String(value.to_string()));
         Ok(Self {
             given: given.to_string(),
             path,
@@ -62,18 +61,40 @@ impl FromStr for Override {
     }
 }
 
+/// The parts of a dotted TOML key (`a."b.c"` gives `a`, `b.c`), or `None` when `key` is not one.
+/// The key is parsed by the TOML parser itself, as the key of a one-line document.
+fn parse_key(key: &str) -> Option<Vec<String>> {
+    let mut table = format!("{key} = 0").parse::<Table>().ok()?;
+    let mut path = Vec::new();
+    loop {
+        if table.len() != 1 {
+            return None;
+        }
+        let (name, value) = table.into_iter().next()?;
+        path.push(name);
+        match value {
+            Value::Table(inner) => table = inner,
+            Value::Integer(0) => return Some(path),
+            _ => return None,
+        }
+    }
+}
+
 /// `text` (the file named `source`) with every override applied in order (a key set twice keeps
-/// the last value). A key may be new (its table decides whether it is known); a table that does
-/// not exist yet is added. Replacing a table by a value, or a path through a value, is refused,
+/// the last value), written back as TOML text headed by a comment naming `source` and the
+/// overrides. A key may be new (its table decides whether it is known); a table that does not
+/// exist yet is added. Replacing a table by a value, or a path through a value, is refused,
 /// naming the option.
 pub fn apply(text: &str, source: &str, overrides: &[Override]) -> Result<String, String> {
-    let mut doc: DocumentMut = text
+    let mut table: Table = text
         .parse()
-        .map_err(|e: toml_edit::TomlError| format!("{source}: {}", e.to_string().trim_end()))?;
+        .map_err(|e: toml::de::Error| format!("{source}: {}", e.to_string().trim_end()))?;
     for one in overrides {
-        set(doc.as_table_mut(), one).map_err(|reason| format!("{one}: {reason}"))?;
+        set(&mut table, one).map_err(|reason| format!("{one}: {reason}"))?;
     }
-    Ok(doc.to_string())
+    let body = toml::to_string(&table).map_err(|e| format!("{source}: {e}"))?;
+    let sets: Vec<String> = overrides.iter().map(ToString::to_string).collect();
+    Ok(format!("# {source} {}\n{body}", sets.join(" ")))
 }
 
 /// Puts `one.value` at `one.path` under `root`.
@@ -81,63 +102,37 @@ fn set(root: &mut Table, one: &Override) -> Result<(), String> {
     let (last, parents) = one
         .path
         .split_last()
-        .expect("Key::parse gives one key or more");
-    let mut table: &mut dyn TableLike = root;
-    let mut inline = false;
+        .expect("parse_key gives one key or more");
+    let mut table = root;
     for (depth, key) in parents.iter().enumerate() {
-        // A missing table is added as the kind its parent holds: a `[header]` table under a
-        // standard one, an inline table under an inline one.
-        let item = table.entry(key.get()).or_insert_with(Item::None);
-        if item.is_none() {
-            *item = if inline {
-                Item::Value(Value::InlineTable(InlineTable::new()))
-            } else {
-                Item::Table(Table::new())
-            };
-        }
-        if item.is_inline_table() {
-            inline = true;
-            table = item.as_inline_table_mut().expect("an inline table");
-            continue;
-        }
-        let type_name = item.type_name();
-        table = match item.as_table_mut() {
-            Some(inner) => inner,
-            None => {
+        let item = table
+            .entry(key.clone())
+            .or_insert_with(|| Value::Table(Table::new()));
+        let type_name = item.type_str();
+        table = match item {
+            Value::Table(inner) => inner,
+            _ => {
                 return Err(format!(
                     "`{}` is a value ({type_name}), not a table: no key under it can be set",
-                    full_key(&one.path[..=depth])
+                    parents[..=depth].join(".")
                 ))
             }
         };
     }
-    match table.get_mut(last.get()) {
-        Some(item) if item.is_table_like() || item.is_array_of_tables() => Err(format!(
+    match table.get(last) {
+        Some(Value::Table(_)) => Err(format!(
             "`{0}` is a table; set one of its keys, e.g. --set {0}.<key>=VALUE",
-            full_key(&one.path)
+            one.path.join(".")
         )),
-        Some(Item::Value(old)) => {
-            // The new value keeps the old one's spacing and trailing comment.
-            let decor = old.decor().clone();
-            *old = one.value.clone();
-            *old.decor_mut() = decor;
-            Ok(())
-        }
+        Some(Value::Array(items)) if items.iter().any(Value::is_table) => Err(format!(
+            "`{}` is an array of tables; it cannot be set from the command line",
+            one.path.join(".")
+        )),
         _ => {
-            let mut value = one.value.clone();
-            value.decor_mut().set_prefix(" ");
-            table.insert(last.get(), Item::Value(value));
+            table.insert(last.clone(), one.value.clone());
             Ok(())
         }
     }
-}
-
-/// The dotted form of a key path, e.g. `ppo.learning_rate`.
-fn full_key(path: &[Key]) -> String {
-    path.iter()
-        .map(|k| k.display_repr().to_string())
-        .collect::<Vec<_>>()
-        .join(".")
 }
 
 #[cfg(test)]
@@ -149,56 +144,54 @@ mod tests {
                           [ppo]\nlearning_rate = 1e-3\n\n[policy]\nactor_hidden = [16, 16]\n\
                           activation = \"tanh\"\n";
 
-    fn applied(sets: &[&str]) -> Result<String, String> {
+    fn applied(sets: &[&str]) -> Result<Table, String> {
         let overrides: Vec<Override> = sets.iter().map(|s| s.parse()).collect::<Result<_, _>>()?;
-        apply(CONFIG, "train.toml", &overrides)
+        let text = apply(CONFIG, "train.toml", &overrides)?;
+        Ok(text.parse().unwrap())
     }
 
     #[test]
-    fn an_existing_value_is_replaced_in_place_with_its_comment() {
-        let text = applied(&["run.seed=5", "ppo.learning_rate=5e-4"]).unwrap();
-        assert_eq!(
-            text,
-            CONFIG
-                .replace("seed = 3  #", "seed = 5  #")
-                .replace("learning_rate = 1e-3", "learning_rate = 5e-4")
+    fn values_are_replaced_and_the_rest_kept() {
+        let doc = applied(&["run.seed=5", "ppo.learning_rate=5e-4"]).unwrap();
+        let mut expected: Table = CONFIG.parse().unwrap();
+        expected["run"]["seed"] = Value::Integer(5);
+        expected["ppo"]["learning_rate"] = Value::Float(5e-4);
+        assert_eq!(doc, expected);
+    }
+
+    #[test]
+    fn the_text_names_the_file_and_the_overrides() {
+        let set: Vec<Override> = vec!["run.seed=5".parse().unwrap()];
+        let text = apply(CONFIG, "train.toml", &set).unwrap();
+        assert!(
+            text.starts_with("# train.toml --set run.seed=5\n"),
+            "{text}"
         );
+        assert!(text.contains("\nseed = 5\n"), "{text}");
     }
 
     #[test]
     fn the_last_of_two_sets_of_one_key_wins() {
-        let text = applied(&["run.seed=5", "run.seed = 7"]).unwrap();
-        assert!(text.contains("seed = 7  # the seed\n"), "{text}");
+        let doc = applied(&["run.seed=5", "run.seed = 7"]).unwrap();
+        assert_eq!(doc["run"]["seed"].as_integer(), Some(7));
     }
 
     #[test]
-    fn a_new_key_is_added_to_its_table() {
-        let text = applied(&["ppo.epochs=4"]).unwrap();
-        let doc: toml::Table = toml::from_str(&text).unwrap();
+    fn a_new_key_is_added_to_its_table_and_a_missing_table_is_added() {
+        let doc = applied(&["ppo.epochs=4", "transport.reward.scale=2.5"]).unwrap();
         assert_eq!(doc["ppo"]["epochs"].as_integer(), Some(4));
         assert_eq!(doc["ppo"]["learning_rate"].as_float(), Some(1e-3));
-        assert!(
-            text.contains("learning_rate = 1e-3\nepochs = 4\n"),
-            "{text}"
-        );
-    }
-
-    #[test]
-    fn a_missing_table_is_added() {
-        let text = applied(&["transport.reward.scale=2.5"]).unwrap();
-        let doc: toml::Table = toml::from_str(&text).unwrap();
         assert_eq!(doc["transport"]["reward"]["scale"].as_float(), Some(2.5));
     }
 
     #[test]
     fn arrays_strings_and_bare_words() {
-        let text = applied(&[
+        let doc = applied(&[
             "policy.actor_hidden=[64, 64]",
             "policy.activation=relu",
             "run.env=\"Pendulum-v1\"",
         ])
         .unwrap();
-        let doc: toml::Table = toml::from_str(&text).unwrap();
         let widths: Vec<i64> = doc["policy"]["actor_hidden"]
             .as_array()
             .unwrap()
@@ -209,8 +202,8 @@ mod tests {
         assert_eq!(doc["policy"]["activation"].as_str(), Some("relu"));
         assert_eq!(doc["run"]["env"].as_str(), Some("Pendulum-v1"));
         // A bare word that is not TOML is a string, which the configuration's types then check.
-        let text = applied(&["run.seed=abc"]).unwrap();
-        assert!(text.contains("seed = \"abc\""), "{text}");
+        let doc = applied(&["run.seed=abc"]).unwrap();
+        assert_eq!(doc["run"]["seed"].as_str(), Some("abc"));
     }
 
     #[test]
@@ -220,8 +213,7 @@ mod tests {
             "scene.size.y=3.0".parse().unwrap(),
             "scene.\"a.b\"=1".parse().unwrap(),
         ];
-        let text = apply(config, "s.toml", &set).unwrap();
-        let doc: toml::Table = toml::from_str(&text).unwrap();
+        let doc: Table = apply(config, "s.toml", &set).unwrap().parse().unwrap();
         assert_eq!(doc["scene"]["size"]["y"].as_float(), Some(3.0));
         assert_eq!(doc["scene"]["size"]["x"].as_float(), Some(1.0));
         assert_eq!(doc["scene"]["a.b"].as_integer(), Some(1));
@@ -252,10 +244,5 @@ mod tests {
         );
         let err = applied(&["run.seed=1", "policy.actor_hidden.0=1"]).unwrap_err();
         assert!(err.contains("--set policy.actor_hidden.0=1"), "{err}");
-    }
-
-    #[test]
-    fn no_override_keeps_the_text() {
-        assert_eq!(apply(CONFIG, "train.toml", &[]).unwrap(), CONFIG);
     }
 }

@@ -216,6 +216,59 @@ fn bad_configs_and_run_folders_exit_with_code_2() {
 }
 
 #[test]
+fn set_overrides_are_stored_in_the_run_and_bad_ones_exit_with_code_2() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("tiny.toml"), TINY_CARTPOLE).unwrap();
+    let args = [
+        "train",
+        "tiny.toml",
+        "--name",
+        "lr",
+        "--quiet",
+        "--no-export",
+        "--stop-after",
+        "1",
+        "--set",
+        "ppo.learning_rate=1e-4",
+        "--set",
+        "run.seed=7",
+    ];
+    let out = rlpkg(&args, dir.path());
+    // --stop-after ends the run early on purpose (exit 0 or the interrupted code).
+    let stored = std::fs::read_to_string(dir.path().join("runs/lr/config.toml"))
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stderr)));
+    let table: toml::Table = stored.parse().unwrap();
+    assert_eq!(table["ppo"]["learning_rate"].as_float(), Some(1e-4));
+    assert_eq!(table["run"]["seed"].as_integer(), Some(7));
+    assert_eq!(table["ppo"]["epochs"].as_integer(), Some(2));
+    assert!(stored.starts_with("# tiny.toml --set ppo.learning_rate=1e-4 --set run.seed=7\n"));
+    for (set, key) in [
+        ("ppo.gamma=2.0", "--set ppo.gamma=2.0"),
+        ("ppo.lerning_rate=1e-4", "--set ppo.lerning_rate=1e-4"),
+        ("run.seed=abc", "--set run.seed=abc"),
+        ("ppo=3", "--set ppo=3"),
+        ("ppo.gamma", "--set"),
+    ] {
+        let out = rlpkg(
+            &[
+                "train",
+                "tiny.toml",
+                "--name",
+                "bad",
+                "--quiet",
+                "--set",
+                set,
+            ],
+            dir.path(),
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{set}: {stderr}");
+        assert!(stderr.contains(key), "{set}: {stderr}");
+        assert!(!dir.path().join("runs/bad").exists(), "{set}");
+    }
+}
+
+#[test]
 fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     // The shipped transport config, shrunk: 2 copies on an 11 x 13 grid, 2 s episodes, 2 updates.
     let root = env!("CARGO_MANIFEST_DIR");
