@@ -4,8 +4,12 @@
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
+use crate::classic::{self, ClassicCopies};
 use crate::state::{pack_state, unpack_state};
-use crate::{check_action_len, env_rng, EnvError, EnvSpec, EnvState, Space, StepBuffers, VecEnv};
+use crate::{
+    check_action_len, env_rng, Autoreset, AutoresetMode, EnvError, EnvSpec, EnvState, ResetCopies,
+    Space, StepBuffers, VecEnv,
+};
 
 /// Gymnasium id.
 pub const ID: &str = "CartPole-v1";
@@ -32,6 +36,7 @@ pub struct CartPole {
     theta_dot: Vec<f64>,
     elapsed_steps: Vec<usize>,
     rngs: Vec<ChaCha8Rng>,
+    autoreset: Autoreset,
 }
 
 impl CartPole {
@@ -63,25 +68,8 @@ impl CartPole {
             theta_dot: vec![0.0; num_envs],
             elapsed_steps: vec![0; num_envs],
             rngs: (0..num_envs).map(|env| env_rng(0, env)).collect(),
+            autoreset: Autoreset::new(num_envs),
         }
-    }
-
-    /// Gymnasium's reset: every state variable uniform in [-0.05, 0.05).
-    fn reset_env(&mut self, env: usize) {
-        let rng = &mut self.rngs[env];
-        let mut draw = || -0.05 + 0.1 * rng.random::<f64>();
-        self.x[env] = draw();
-        self.x_dot[env] = draw();
-        self.theta[env] = draw();
-        self.theta_dot[env] = draw();
-        self.elapsed_steps[env] = 0;
-    }
-
-    fn write_obs(&self, env: usize, row: &mut [f32]) {
-        row[0] = self.x[env] as f32;
-        row[1] = self.x_dot[env] as f32;
-        row[2] = self.theta[env] as f32;
-        row[3] = self.theta_dot[env] as f32;
     }
 }
 
@@ -116,21 +104,24 @@ impl VecEnv for CartPole {
     }
 
     fn reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
-        for env in 0..self.num_envs() {
-            self.rngs[env] = env_rng(seed, env);
-            self.reset_env(env);
-            self.write_obs(env, &mut out.obs[env * OBS_DIM..(env + 1) * OBS_DIM]);
-        }
-        out.final_obs.copy_from_slice(&out.obs);
-        out.rewards.fill(0.0);
-        out.terminated.fill(false);
-        out.truncated.fill(false);
+        self.reset_copies(ResetCopies::all(seed), out)
+    }
+
+    fn reset_copies(&mut self, copies: ResetCopies, out: &mut StepBuffers) -> Result<(), EnvError> {
+        classic::reset(self, self.num_envs(), copies, out)
+    }
+
+    fn autoreset_mode(&self) -> AutoresetMode {
+        self.autoreset.mode()
+    }
+
+    fn set_autoreset_mode(&mut self, mode: AutoresetMode) -> Result<(), EnvError> {
+        self.autoreset.set_mode(mode);
         Ok(())
     }
 
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError> {
-        let num_envs = self.num_envs();
-        check_action_len(actions, num_envs, 1)?;
+        check_action_len(actions, self.num_envs(), 1)?;
         if let Some(env) = actions.iter().position(|&a| a != 0.0 && a != 1.0) {
             return Err(EnvError::InvalidDiscreteAction {
                 env,
@@ -138,35 +129,60 @@ impl VecEnv for CartPole {
                 n: 2,
             });
         }
-        for (env, &action) in actions.iter().enumerate() {
-            let force = if action == 1.0 { FORCE_MAG } else { -FORCE_MAG };
-            let (sin_theta, cos_theta) = self.theta[env].sin_cos();
-            let temp = (force
-                + POLE_MASS_LENGTH * self.theta_dot[env] * self.theta_dot[env] * sin_theta)
-                / TOTAL_MASS;
-            let theta_acc = (GRAVITY * sin_theta - cos_theta * temp)
-                / (HALF_LENGTH * (4.0 / 3.0 - MASS_POLE * cos_theta * cos_theta / TOTAL_MASS));
-            let x_acc = temp - POLE_MASS_LENGTH * theta_acc * cos_theta / TOTAL_MASS;
-            self.x[env] += TAU * self.x_dot[env];
-            self.x_dot[env] += TAU * x_acc;
-            self.theta[env] += TAU * self.theta_dot[env];
-            self.theta_dot[env] += TAU * theta_acc;
-            self.elapsed_steps[env] += 1;
+        classic::step(self, actions, 1, out)
+    }
+}
 
-            let terminated =
-                self.x[env].abs() > X_THRESHOLD || self.theta[env].abs() > THETA_THRESHOLD;
-            let truncated = self.elapsed_steps[env] >= MAX_EPISODE_STEPS;
-            let row = env * OBS_DIM..(env + 1) * OBS_DIM;
-            self.write_obs(env, &mut out.final_obs[row.clone()]);
-            if terminated || truncated {
-                self.reset_env(env);
-            }
-            self.write_obs(env, &mut out.obs[row]);
-            out.rewards[env] = 1.0;
-            out.terminated[env] = terminated;
-            out.truncated[env] = truncated;
-        }
-        Ok(())
+impl ClassicCopies for CartPole {
+    const OBS_DIM: usize = OBS_DIM;
+
+    fn autoreset(&mut self) -> &mut Autoreset {
+        &mut self.autoreset
+    }
+
+    fn reseed(&mut self, env: usize, rng: ChaCha8Rng) {
+        self.rngs[env] = rng;
+    }
+
+    /// Gymnasium's reset: every state variable uniform in [-0.05, 0.05).
+    fn reset_copy(&mut self, env: usize) {
+        let rng = &mut self.rngs[env];
+        let mut draw = || -0.05 + 0.1 * rng.random::<f64>();
+        self.x[env] = draw();
+        self.x_dot[env] = draw();
+        self.theta[env] = draw();
+        self.theta_dot[env] = draw();
+        self.elapsed_steps[env] = 0;
+    }
+
+    fn step_copy(&mut self, env: usize, action: &[f32]) -> (f32, bool, bool) {
+        let force = if action[0] == 1.0 {
+            FORCE_MAG
+        } else {
+            -FORCE_MAG
+        };
+        let (sin_theta, cos_theta) = self.theta[env].sin_cos();
+        let temp = (force
+            + POLE_MASS_LENGTH * self.theta_dot[env] * self.theta_dot[env] * sin_theta)
+            / TOTAL_MASS;
+        let theta_acc = (GRAVITY * sin_theta - cos_theta * temp)
+            / (HALF_LENGTH * (4.0 / 3.0 - MASS_POLE * cos_theta * cos_theta / TOTAL_MASS));
+        let x_acc = temp - POLE_MASS_LENGTH * theta_acc * cos_theta / TOTAL_MASS;
+        self.x[env] += TAU * self.x_dot[env];
+        self.x_dot[env] += TAU * x_acc;
+        self.theta[env] += TAU * self.theta_dot[env];
+        self.theta_dot[env] += TAU * theta_acc;
+        self.elapsed_steps[env] += 1;
+        let terminated = self.x[env].abs() > X_THRESHOLD || self.theta[env].abs() > THETA_THRESHOLD;
+        let truncated = self.elapsed_steps[env] >= MAX_EPISODE_STEPS;
+        (1.0, terminated, truncated)
+    }
+
+    fn write_obs(&self, env: usize, row: &mut [f32]) {
+        row[0] = self.x[env] as f32;
+        row[1] = self.x_dot[env] as f32;
+        row[2] = self.theta[env] as f32;
+        row[3] = self.theta_dot[env] as f32;
     }
 }
 

@@ -84,4 +84,31 @@ pub enum EnvError {
         /// The offending value.
         value: f32,
     },
+    /// A copy whose episode ended was stepped before being reset ([`crate::AutoresetMode::Disabled`]).
+    #[error(
+        "environment {env}: its episode ended and autoreset is disabled; reset it (reset mask) \
+         before stepping"
+    )]
+    FinishedCopy {
+        /// Index of the environment copy.
+        env: usize,
+    },
+    /// A per-copy input (reset mask, seeds) does not hold one value per copy.
+    #[error("expected one {what} value per environment copy ({expected}), got {got}")]
+    BatchLength {
+        /// What the values are.
+        what: &'static str,
+        /// Number of copies.
+        expected: usize,
+        /// Values received.
+        got: usize,
+    },
+    /// The environment does not support what was asked (e.g. an autoreset mode).
+    #[error("environment {env}: {what} is not supported")]
+    Unsupported {
+        /// Environment id.
+        env: String,
+        /// What was asked.
+        what: String,
+    },
 }

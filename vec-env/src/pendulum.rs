@@ -6,8 +6,12 @@ use std::f64::consts::PI;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
+use crate::classic::{self, ClassicCopies};
 use crate::state::{pack_state, unpack_state};
-use crate::{check_action_len, env_rng, EnvError, EnvSpec, EnvState, Space, StepBuffers, VecEnv};
+use crate::{
+    check_action_len, env_rng, Autoreset, AutoresetMode, EnvError, EnvSpec, EnvState, ResetCopies,
+    Space, StepBuffers, VecEnv,
+};
 
 /// Gymnasium id.
 pub const ID: &str = "Pendulum-v1";
@@ -27,6 +31,7 @@ pub struct Pendulum {
     theta_dot: Vec<f64>,
     elapsed_steps: Vec<usize>,
     rngs: Vec<ChaCha8Rng>,
+    autoreset: Autoreset,
 }
 
 /// Angle wrapped to [-pi, pi) with Python's modulo semantics.
@@ -59,21 +64,8 @@ impl Pendulum {
             theta_dot: vec![0.0; num_envs],
             elapsed_steps: vec![0; num_envs],
             rngs: (0..num_envs).map(|env| env_rng(0, env)).collect(),
+            autoreset: Autoreset::new(num_envs),
         }
-    }
-
-    /// Gymnasium's reset: angle uniform in [-pi, pi), angular velocity uniform in [-1, 1).
-    fn reset_env(&mut self, env: usize) {
-        let rng = &mut self.rngs[env];
-        self.theta[env] = -PI + 2.0 * PI * rng.random::<f64>();
-        self.theta_dot[env] = -1.0 + 2.0 * rng.random::<f64>();
-        self.elapsed_steps[env] = 0;
-    }
-
-    fn write_obs(&self, env: usize, row: &mut [f32]) {
-        row[0] = self.theta[env].cos() as f32;
-        row[1] = self.theta[env].sin() as f32;
-        row[2] = self.theta_dot[env] as f32;
     }
 }
 
@@ -106,47 +98,68 @@ impl VecEnv for Pendulum {
     }
 
     fn reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
-        for env in 0..self.num_envs() {
-            self.rngs[env] = env_rng(seed, env);
-            self.reset_env(env);
-            self.write_obs(env, &mut out.obs[env * OBS_DIM..(env + 1) * OBS_DIM]);
-        }
-        out.final_obs.copy_from_slice(&out.obs);
-        out.rewards.fill(0.0);
-        out.terminated.fill(false);
-        out.truncated.fill(false);
+        self.reset_copies(ResetCopies::all(seed), out)
+    }
+
+    fn reset_copies(&mut self, copies: ResetCopies, out: &mut StepBuffers) -> Result<(), EnvError> {
+        classic::reset(self, self.num_envs(), copies, out)
+    }
+
+    fn autoreset_mode(&self) -> AutoresetMode {
+        self.autoreset.mode()
+    }
+
+    fn set_autoreset_mode(&mut self, mode: AutoresetMode) -> Result<(), EnvError> {
+        self.autoreset.set_mode(mode);
         Ok(())
     }
 
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError> {
         check_action_len(actions, self.num_envs(), 1)?;
-        for (env, &action) in actions.iter().enumerate() {
-            let torque = (action as f64).clamp(-MAX_TORQUE, MAX_TORQUE);
-            let (theta, theta_dot) = (self.theta[env], self.theta_dot[env]);
-            let cost = angle_normalize(theta).powi(2)
-                + 0.1 * theta_dot * theta_dot
-                + 0.001 * torque * torque;
-            let new_theta_dot = (theta_dot
-                + (3.0 * GRAVITY / (2.0 * LENGTH) * theta.sin()
-                    + 3.0 / (MASS * LENGTH * LENGTH) * torque)
-                    * DT)
-                .clamp(-MAX_SPEED, MAX_SPEED);
-            self.theta[env] = theta + new_theta_dot * DT;
-            self.theta_dot[env] = new_theta_dot;
-            self.elapsed_steps[env] += 1;
+        classic::step(self, actions, 1, out)
+    }
+}
 
-            let truncated = self.elapsed_steps[env] >= MAX_EPISODE_STEPS;
-            let row = env * OBS_DIM..(env + 1) * OBS_DIM;
-            self.write_obs(env, &mut out.final_obs[row.clone()]);
-            if truncated {
-                self.reset_env(env);
-            }
-            self.write_obs(env, &mut out.obs[row]);
-            out.rewards[env] = -cost as f32;
-            out.terminated[env] = false;
-            out.truncated[env] = truncated;
-        }
-        Ok(())
+impl ClassicCopies for Pendulum {
+    const OBS_DIM: usize = OBS_DIM;
+
+    fn autoreset(&mut self) -> &mut Autoreset {
+        &mut self.autoreset
+    }
+
+    fn reseed(&mut self, env: usize, rng: ChaCha8Rng) {
+        self.rngs[env] = rng;
+    }
+
+    /// Gymnasium's reset: angle uniform in [-pi, pi), angular velocity uniform in [-1, 1).
+    fn reset_copy(&mut self, env: usize) {
+        let rng = &mut self.rngs[env];
+        self.theta[env] = -PI + 2.0 * PI * rng.random::<f64>();
+        self.theta_dot[env] = -1.0 + 2.0 * rng.random::<f64>();
+        self.elapsed_steps[env] = 0;
+    }
+
+    fn step_copy(&mut self, env: usize, action: &[f32]) -> (f32, bool, bool) {
+        let torque = (action[0] as f64).clamp(-MAX_TORQUE, MAX_TORQUE);
+        let (theta, theta_dot) = (self.theta[env], self.theta_dot[env]);
+        let cost =
+            angle_normalize(theta).powi(2) + 0.1 * theta_dot * theta_dot + 0.001 * torque * torque;
+        let new_theta_dot = (theta_dot
+            + (3.0 * GRAVITY / (2.0 * LENGTH) * theta.sin()
+                + 3.0 / (MASS * LENGTH * LENGTH) * torque)
+                * DT)
+            .clamp(-MAX_SPEED, MAX_SPEED);
+        self.theta[env] = theta + new_theta_dot * DT;
+        self.theta_dot[env] = new_theta_dot;
+        self.elapsed_steps[env] += 1;
+        let truncated = self.elapsed_steps[env] >= MAX_EPISODE_STEPS;
+        (-cost as f32, false, truncated)
+    }
+
+    fn write_obs(&self, env: usize, row: &mut [f32]) {
+        row[0] = self.theta[env].cos() as f32;
+        row[1] = self.theta[env].sin() as f32;
+        row[2] = self.theta_dot[env] as f32;
     }
 }
 

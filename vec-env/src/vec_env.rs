@@ -1,6 +1,6 @@
 //! The [`VecEnv`] trait and the buffers it fills.
 
-use crate::{EnvError, EnvSpec, EnvState};
+use crate::{AutoresetMode, EnvError, EnvSpec, EnvState, ResetCopies, Seeding};
 
 /// Output buffers of [`VecEnv::reset`] and [`VecEnv::step`], one row per environment copy.
 #[derive(Debug, Clone, PartialEq)]
@@ -85,8 +85,35 @@ pub trait VecEnv: Send {
     /// An error when the episodes cannot be started (e.g. the simulator fails while preparing
     /// them).
     fn reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError>;
+    /// Restarts the copies `copies` chooses (all, or those of a mask), reseeded as it says (copy
+    /// `i` from `seed + i`, from its own seed, or continuing its stream); their rows of `out`
+    /// are filled (reward 0, no flag) and the other rows are left as they are.
+    fn reset_copies(&mut self, copies: ResetCopies, out: &mut StepBuffers) -> Result<(), EnvError> {
+        match (copies.is_all(), copies.seeding) {
+            (true, Seeding::Base(seed)) => self.reset(seed, out),
+            _ => Err(EnvError::Unsupported {
+                env: self.spec().id.clone(),
+                what: "resetting chosen copies or seeding each copy".into(),
+            }),
+        }
+    }
+    /// What a copy whose episode ends does ([`AutoresetMode::SameStep`] unless set).
+    fn autoreset_mode(&self) -> AutoresetMode {
+        AutoresetMode::SameStep
+    }
+    /// Sets the autoreset mode; reset the environment afterwards.
+    fn set_autoreset_mode(&mut self, mode: AutoresetMode) -> Result<(), EnvError> {
+        match mode {
+            AutoresetMode::SameStep => Ok(()),
+            _ => Err(EnvError::Unsupported {
+                env: self.spec().id.clone(),
+                what: format!("autoreset mode {}", mode.name()),
+            }),
+        }
+    }
     /// Applies `actions` (`[E x action_dim]`; discrete actions as integral values) and fills `out`.
-    /// Copies whose episode ends are reset at once; `out.final_obs` keeps where they ended.
+    /// Copies whose episode ends restart as [`VecEnv::autoreset_mode`] says (by default at once,
+    /// `out.final_obs` keeping where they ended).
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError>;
     /// Everything needed to continue exactly where the environment is (state, step counters,
     /// random streams), for checkpoints.
