@@ -15,6 +15,7 @@
 mod autoreset;
 pub mod cartpole;
 mod classic;
+pub mod digest;
 mod error;
 pub mod info;
 pub mod pendulum;

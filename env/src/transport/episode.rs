@@ -17,6 +17,7 @@ use super::geometry::v3;
 use super::geometry::vec3_as_array;
 use super::{sim_error, Transport, TransportPath};
 use crate::{env_rng, EnvError, StepBuffers, VecEnv};
+use rlpkg_vec_env::ResetCopies;
 
 /// What was drawn for one copy's current episode.
 #[derive(Debug, Clone, PartialEq)]
@@ -213,24 +214,49 @@ impl Transport {
     /// [`VecEnv::reset`] that reports a failure to settle the packages or to restore them instead
     /// of panicking.
     pub fn try_reset(&mut self, seed: u64, out: &mut StepBuffers) -> Result<(), EnvError> {
-        self.settle_variants(seed)?;
-        self.retired.fill(false);
-        if let Some(sensors) = &mut self.sensors {
-            sensors.reseed(seed);
+        self.restart_copies(ResetCopies::all(seed), out)
+    }
+
+    /// [`VecEnv::reset_copies`]: the settled variants are drawn again (and the sensors reseeded)
+    /// from the batch's seed when every copy is reseeded, else kept (settled from the batch's
+    /// seed, or 0, if there are none yet); each chosen copy then starts an episode.
+    pub(super) fn restart_copies(
+        &mut self,
+        copies: ResetCopies,
+        out: &mut StepBuffers,
+    ) -> Result<(), EnvError> {
+        copies.check(self.num_envs())?;
+        match (copies.is_all(), copies.batch_seed()) {
+            (true, Some(seed)) => {
+                self.settle_variants(seed)?;
+                if let Some(sensors) = &mut self.sensors {
+                    sensors.reseed(seed);
+                }
+            }
+            (_, seed) if self.variants.is_empty() => self.settle_variants(seed.unwrap_or(0))?,
+            _ => {}
         }
-        for env in 0..self.num_envs() {
-            self.rngs[env] = env_rng(seed, env);
+        let chosen: Vec<usize> = (0..self.num_envs())
+            .filter(|&env| copies.includes(env))
+            .collect();
+        for &env in &chosen {
+            self.retired[env] = false;
+            self.autoreset.restarted(env);
+            if let Some(seed) = copies.seed_of(env) {
+                self.rngs[env] = env_rng(seed, 0);
+            }
             self.start_episode(env)?;
         }
         self.read_simulator()?;
-        for env in 0..self.num_envs() {
+        for &env in &chosen {
             self.start_sensors(env);
         }
-        out.rewards.iter_mut().for_each(|r| *r = 0.0);
-        out.terminated.iter_mut().for_each(|t| *t = false);
-        out.truncated.iter_mut().for_each(|t| *t = false);
-        self.info.iter_mut().for_each(|x| *x = 0.0);
-        for env in 0..self.num_envs() {
+        let width = self.info_names.len();
+        for &env in &chosen {
+            out.rewards[env] = 0.0;
+            out.terminated[env] = false;
+            out.truncated[env] = false;
+            self.info[env * width..(env + 1) * width].fill(0.0);
             self.observe_into(env, out, false);
             self.observe_into(env, out, true);
         }
@@ -331,26 +357,52 @@ impl Transport {
     }
 
     /// Ends the episodes of the copies `finished` and fills their observation rows: each is
-    /// retired in evaluation mode, else a new episode starts in it.
+    /// retired in evaluation mode or until its restart (next-step and disabled autoreset), else a
+    /// new episode starts in it.
     pub(super) fn finish_episodes(
         &mut self,
         finished: &[usize],
         out: &mut StepBuffers,
     ) -> Result<(), EnvError> {
-        if self.retire_finished {
-            for &env in finished {
+        let mut restarting = Vec::with_capacity(finished.len());
+        for &env in finished {
+            if !self.retire_finished && self.autoreset.episode_ended(env) {
+                restarting.push(env);
+            } else {
                 self.sim.retire(env).map_err(sim_error)?;
                 self.retired[env] = true;
                 self.observe_into(env, out, false);
             }
-            return Ok(());
         }
-        for &env in finished {
+        self.start_episodes(&restarting, out)
+    }
+
+    /// Next-step autoreset: the copies `waiting` (retired since their episode ended in the last
+    /// step) start a new episode; their rows hold its first observation, reward 0 and no flag.
+    pub(super) fn restart_waiting(
+        &mut self,
+        waiting: &[usize],
+        out: &mut StepBuffers,
+    ) -> Result<(), EnvError> {
+        self.start_episodes(waiting, out)?;
+        let width = self.info_names.len();
+        for &env in waiting {
+            self.retired[env] = false;
+            self.autoreset.restarted(env);
+            self.info[env * width..(env + 1) * width].fill(0.0);
+            self.observe_into(env, out, true);
+        }
+        Ok(())
+    }
+
+    /// Starts a new episode in each copy of `envs` and fills its observation row.
+    fn start_episodes(&mut self, envs: &[usize], out: &mut StepBuffers) -> Result<(), EnvError> {
+        for &env in envs {
             self.start_episode(env)?;
         }
-        if !finished.is_empty() {
+        if !envs.is_empty() {
             self.read_loads()?;
-            for &env in finished {
+            for &env in envs {
                 self.start_sensors(env);
                 self.observe_into(env, out, false);
             }
@@ -364,6 +416,25 @@ mod tests {
     use super::*;
     use crate::transport::test_support::{config, env, test_table};
     use crate::transport::{load_paths, load_scene};
+    use rlpkg_vec_env::{AutoresetMode, Seeding};
+
+    /// Two copies on a weak seal: copy 0, driven over-fast, fails within a few steps; copy 1,
+    /// held still, reaches the 2 s time limit.
+    fn failing_pair() -> impl Fn() -> Transport {
+        let text = test_table()
+            .replace("settled_variants = 2", "settled_variants = 1")
+            .replace("time_limit_s = 12.0", "time_limit_s = 2.0");
+        let config = config(&text);
+        let mut scene = load_scene(&config, "test.toml").unwrap();
+        scene.seal.vacuum_kpa = 7.0;
+        let paths = load_paths(&config, scene.disc.hold_at_recorded_start, "test.toml").unwrap();
+        move || Transport::with_scene(config.clone(), scene.clone(), paths.clone(), 2).unwrap()
+    }
+
+    fn pair_actions(step: usize) -> [f32; 6] {
+        let tilt = if step % 2 == 0 { 0.35 } else { -0.35 };
+        [0.945, tilt, -tilt, 0.0, 0.0, 0.0]
+    }
 
     #[test]
     fn randomised_values_stay_in_range_and_follow_the_seed_on_any_thread_count() {
@@ -482,5 +553,146 @@ mod tests {
         // A reset brings the retired copy back.
         retiring.try_reset(5, &mut a).unwrap();
         assert!(!retiring.is_retired(0));
+    }
+
+    #[test]
+    fn next_step_and_disabled_autoreset_around_an_episode_end_on_any_thread_count() {
+        let make = failing_pair();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let started = |mode| {
+                    let mut t = make();
+                    t.set_autoreset_mode(mode).unwrap();
+                    let mut out = t.buffers();
+                    t.reset(5, &mut out).unwrap();
+                    (t, out)
+                };
+                let (mut same, mut a) = started(AutoresetMode::SameStep);
+                let (mut next, mut b) = started(AutoresetMode::NextStep);
+                let (mut off, mut c) = started(AutoresetMode::Disabled);
+                let dim = same.spec().observation.dim();
+                let mut trace = Vec::new();
+                let mut step = 0;
+                loop {
+                    let actions = pair_actions(step);
+                    same.step(&actions, &mut a).unwrap();
+                    next.step(&actions, &mut b).unwrap();
+                    off.step(&actions, &mut c).unwrap();
+                    trace.push(b.clone());
+                    for out in [&b, &c] {
+                        assert_eq!(out.rewards, a.rewards, "step {step}");
+                        assert_eq!(out.terminated, a.terminated, "step {step}");
+                        assert_eq!(out.final_obs, a.final_obs, "step {step}");
+                    }
+                    step += 1;
+                    if a.done(0) {
+                        break;
+                    }
+                    assert_eq!((&b.obs, &c.obs), (&a.obs, &a.obs), "step {step}");
+                    assert!(step < 39, "copy 0 did not fail");
+                }
+                // The ending step shows the terminal observation; the restart waits.
+                assert!(a.terminated[0] && next.is_retired(0) && !same.is_retired(0));
+                assert_eq!(b.obs[..dim], a.final_obs[..dim]);
+                assert_eq!(c.obs[..dim], a.final_obs[..dim]);
+                let restart = a.obs[..dim].to_vec();
+                assert_ne!(&restart[..], &a.final_obs[..dim]);
+                // Next step: copy 0 restarts where same-step restarted it (its action ignored,
+                // not simulated), reward 0, no flag; copy 1 runs on unchanged.
+                let actions = pair_actions(step);
+                same.step(&actions, &mut a).unwrap();
+                next.step(&actions, &mut b).unwrap();
+                trace.push(b.clone());
+                assert_eq!(&b.obs[..dim], &restart[..]);
+                assert_eq!(&b.final_obs[..dim], &restart[..]);
+                assert_eq!((b.rewards[0], b.done(0)), (0.0, false));
+                assert!(!next.is_retired(0));
+                assert_eq!(b.obs[dim..], a.obs[dim..]);
+                assert_eq!(b.rewards[1], a.rewards[1]);
+                // The same draws as same-step's restart, a step later.
+                assert_eq!(next.conditions(0), same.conditions(0));
+                // Disabled: stepping the finished copy fails until it is reset by mask.
+                assert!(matches!(
+                    off.step(&actions, &mut c),
+                    Err(EnvError::FinishedCopy { env: 0 })
+                ));
+                let before = c.clone();
+                let mask = [true, false];
+                let copies = ResetCopies {
+                    mask: Some(&mask),
+                    seeding: Seeding::Continue,
+                };
+                off.reset_copies(copies, &mut c).unwrap();
+                assert_eq!(&c.obs[..dim], &restart[..]);
+                assert_eq!(c.obs[dim..], before.obs[dim..]);
+                assert_eq!((c.rewards[0], c.done(0)), (0.0, false));
+                off.step(&actions, &mut c).unwrap();
+                trace
+            })
+        };
+        assert_eq!(run(1), run(2), "next-step: 1 and 2 threads, bit-identical");
+    }
+
+    #[test]
+    fn copies_are_seeded_one_by_one_and_a_mask_restarts_only_its_copies() {
+        let make = failing_pair();
+        let (mut per_copy, mut reference) = (make(), make());
+        let (mut a, mut b) = (per_copy.buffers(), reference.buffers());
+        let seeds = [8, 20];
+        let copies = ResetCopies {
+            mask: None,
+            seeding: Seeding::PerCopy(&seeds),
+        };
+        per_copy.reset_copies(copies, &mut a).unwrap();
+        // Copy 0 as reset(8) draws it; copy 1 from seed 20 = 19 + 1.
+        reference.reset(8, &mut b).unwrap();
+        assert_eq!(per_copy.conditions(0), reference.conditions(0));
+        let dim = reference.spec().observation.dim();
+        assert_eq!(a.obs[..dim], b.obs[..dim]);
+        // Copy 1 draws its episode as copy 1 of reset(19) does (the settled package variants
+        // come from the batch's seed, 8, so only the draws are compared).
+        reference.reset(19, &mut b).unwrap();
+        let (got, expected) = (per_copy.conditions(1), reference.conditions(1));
+        assert_eq!(got.target_tilt_rad, expected.target_tilt_rad);
+        assert_eq!(got.goal_jitter_m, expected.goal_jitter_m);
+        assert_ne!(got.target_tilt_rad, per_copy.conditions(0).target_tilt_rad);
+        // A mask restarts copy 1 only: copy 0's row stays, and it runs on as if nothing happened.
+        let (mut masked, mut plain) = (make(), make());
+        let (mut m, mut p) = (masked.buffers(), plain.buffers());
+        masked.reset(3, &mut m).unwrap();
+        plain.reset(3, &mut p).unwrap();
+        let hold = [0.0; 6];
+        for _ in 0..3 {
+            masked.step(&hold, &mut m).unwrap();
+            plain.step(&hold, &mut p).unwrap();
+        }
+        let before = m.clone();
+        let mask = [false, true];
+        let copies = ResetCopies {
+            mask: Some(&mask),
+            seeding: Seeding::Base(3),
+        };
+        masked.reset_copies(copies, &mut m).unwrap();
+        assert_eq!(m.obs[..dim], before.obs[..dim]);
+        assert_ne!(m.obs[dim..], before.obs[dim..]);
+        for _ in 0..3 {
+            masked.step(&hold, &mut m).unwrap();
+            plain.step(&hold, &mut p).unwrap();
+            assert_eq!(m.obs[..dim], p.obs[..dim]);
+            assert_eq!(m.rewards[0], p.rewards[0]);
+        }
+        let wrong = [1, 2, 3];
+        let copies = ResetCopies {
+            mask: None,
+            seeding: Seeding::PerCopy(&wrong),
+        };
+        assert!(matches!(
+            masked.reset_copies(copies, &mut m),
+            Err(EnvError::BatchLength { .. })
+        ));
     }
 }

@@ -93,6 +93,7 @@ pub use sensors::{
 
 use crate::{env_rng, EnvError, EnvSpec, EnvState, StepBuffers, VecEnv};
 use episode::{Episode, Variant};
+use rlpkg_vec_env::{Autoreset, AutoresetMode, ResetCopies};
 use sensors::Sensors;
 
 /// The id the command line's task registry knows this environment by.
@@ -130,8 +131,11 @@ pub struct Transport {
     dt: f64,
     /// Evaluation mode: a finished copy is retired instead of restarted.
     retire_finished: bool,
-    /// Copies retired since the last reset (evaluation mode).
+    /// Copies retired since the last reset (evaluation mode), or since their episode ended
+    /// (next-step and disabled autoreset: the simulator does not step them until they restart).
     retired: Vec<bool>,
+    /// What a copy whose episode ended does, and which copies wait for their restart.
+    autoreset: Autoreset,
 }
 
 fn sim_error(e: impl std::fmt::Display) -> EnvError {
@@ -202,6 +206,7 @@ impl Transport {
             dt,
             retire_finished: false,
             retired: vec![false; num_envs],
+            autoreset: Autoreset::new(num_envs),
         })
     }
 
@@ -280,8 +285,29 @@ impl VecEnv for Transport {
         self.try_reset(seed, out)
     }
 
+    fn reset_copies(&mut self, copies: ResetCopies, out: &mut StepBuffers) -> Result<(), EnvError> {
+        self.restart_copies(copies, out)
+    }
+
+    fn autoreset_mode(&self) -> AutoresetMode {
+        self.autoreset.mode()
+    }
+
+    /// Next-step and disabled autoreset retire a copy whose episode ended (as evaluation mode
+    /// does, [`Transport::set_retire_finished`]): the simulator does not step it until it restarts.
+    fn set_autoreset_mode(&mut self, mode: AutoresetMode) -> Result<(), EnvError> {
+        self.autoreset.set_mode(mode);
+        Ok(())
+    }
+
     fn step(&mut self, actions: &[f32], out: &mut StepBuffers) -> Result<(), EnvError> {
         self.check_actions(actions)?;
+        self.autoreset.check_step()?;
+        // Next-step autoreset: copies retired when their episode ended restart after this step's
+        // simulation, which they sit out.
+        let restarting: Vec<usize> = (0..self.num_envs())
+            .filter(|&env| self.autoreset.restarts_now(env))
+            .collect();
         let start_states = self.states.clone();
         match self.sensors.as_mut() {
             Some(sensors) => {
@@ -315,7 +341,8 @@ impl VecEnv for Transport {
                 self.observe_into(env, out, false);
             }
         }
-        self.finish_episodes(&finished, out)
+        self.finish_episodes(&finished, out)?;
+        self.restart_waiting(&restarting, out)
     }
 
     fn save_state(&self) -> EnvState {

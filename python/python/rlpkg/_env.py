@@ -1,0 +1,80 @@
+"""`make`: one copy of an rlpkg environment as a Gymnasium ``Env``."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from rlpkg import _native
+from rlpkg._spaces import single_spaces
+from rlpkg._vector import check_actions, check_id_and_config
+
+
+class RlpkgEnv(gymnasium.Env):
+    """One copy of an rlpkg environment (see :func:`make`). An episode ends with ``terminated``
+    or ``truncated`` (the environment's own time limit); call ``reset`` to start the next one
+    (stepping a finished episode raises ValueError)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        env_id: str,
+        *,
+        config: str | os.PathLike | None = None,
+        obs_mode: str = "actor",
+        num_threads: int | None = None,
+    ):
+        path = check_id_and_config(env_id, config)
+        self._core = _native.VecEnvCore(env_id, 1, path, "disabled", num_threads)
+        self.rlpkg_spec = self._core.spec()
+        self.obs_mode = obs_mode
+        self.observation_space, self.action_space = single_spaces(self.rlpkg_spec, obs_mode)
+        self.render_mode = None
+        self.info_names = list(self.rlpkg_spec["info_names"])
+        self._discrete_n = self.rlpkg_spec.get("action_n")
+        self._action_shape = self.action_space.shape
+
+    def _observation(self, obs, critic):
+        if self.obs_mode == "dict":
+            return {"policy": obs[0], "critic": critic[0]}
+        return obs[0]
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Starts an episode; ``seed`` reseeds the copy (as copy 0 of ``make_vec`` reset with
+        that seed), None continues its random stream."""
+        super().reset(seed=seed)
+        if options:
+            raise ValueError(f"options: {sorted(options)}; {self.rlpkg_spec['id']} takes none")
+        args = {} if seed is None else {"seed": int(seed)}
+        obs, critic = self._core.reset(**args)
+        return self._observation(obs, critic), {}
+
+    def step(self, action):
+        """One step; ``info`` holds the environment's per-step values (Transport-v0's reward
+        terms and episode outcomes) as floats."""
+        flat = check_actions(action, self._discrete_n, self._action_shape)
+        obs, critic, rewards, terminated, truncated, _, _, info = self._core.step(flat)
+        infos = {name: float(info[0, k]) for k, name in enumerate(self.info_names)}
+        return (
+            self._observation(obs, critic),
+            float(rewards[0]),
+            bool(terminated[0]),
+            bool(truncated[0]),
+            infos,
+        )
+
+    def close(self):
+        """Frees the Rust environment."""
+        self._core = None
+
+
+def make(id: str, **kwargs) -> RlpkgEnv:
+    """One copy of ``id`` ("CartPole-v1", "Pendulum-v1", "Transport-v0") as a
+    :class:`gymnasium.Env` without autoreset. Keywords: ``config`` (Transport-v0's configuration
+    file), ``obs_mode`` ("actor" or "dict"), ``num_threads``."""
+    kwargs.pop("render_mode", None)
+    return RlpkgEnv(id, **kwargs)

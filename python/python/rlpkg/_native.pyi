@@ -1,0 +1,51 @@
+"""Type stubs of ``rlpkg._native``, the Rust core of the package."""
+
+from os import PathLike
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+IDS: list[str]
+REPOSITORY: str
+
+class VecEnvCore:
+    """One vectorised environment with its own rayon thread pool."""
+
+    def __init__(
+        self,
+        id: str,
+        num_envs: int,
+        config: str | PathLike[str] | None = None,
+        autoreset_mode: str = "next_step",
+        num_threads: int | None = None,
+    ) -> None: ...
+    def spec(self) -> dict[str, Any]: ...
+    def reset(
+        self,
+        seed: int | None = None,
+        seeds: list[int] | None = None,
+        mask: npt.NDArray[np.bool_] | None = None,
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]: ...
+    def step(
+        self, actions: npt.NDArray[np.float32]
+    ) -> tuple[
+        npt.NDArray[np.float32],
+        npt.NDArray[np.float32] | None,
+        npt.NDArray[np.float32],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.float32],
+        npt.NDArray[np.float32] | None,
+        npt.NDArray[np.float32],
+    ]: ...
+
+def rust_rollout_digest(
+    id: str,
+    num_envs: int,
+    steps: int,
+    seed: int,
+    config: str | PathLike[str] | None = None,
+    autoreset_mode: str = "same_step",
+    num_threads: int | None = None,
+) -> int: ...

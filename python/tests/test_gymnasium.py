@@ -1,0 +1,143 @@
+"""rlpkg's environments through Gymnasium: the checker, autoreset parity with SyncVectorEnv,
+registration, spaces and observation groups."""
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+import rlpkg
+
+MODES = {
+    "next_step": AutoresetMode.NEXT_STEP,
+    "same_step": AutoresetMode.SAME_STEP,
+    "disabled": AutoresetMode.DISABLED,
+}
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v1", "Pendulum-v1", "Transport-v0"])
+def test_env_checker_passes(env_id, small_transport):
+    kwargs = {"config": small_transport} if env_id == "Transport-v0" else {}
+    env = rlpkg.make(env_id, **kwargs)
+    check_env(env, skip_render_check=True)
+    env.close()
+
+
+@pytest.mark.parametrize("mode", list(MODES))
+def test_autoreset_matches_sync_vector_env(mode):
+    num_envs, steps = 16, 2000
+    venv = rlpkg.make_vec("CartPole-v1", num_envs, autoreset_mode=mode)
+    assert venv.metadata["autoreset_mode"] == MODES[mode]
+    sync = SyncVectorEnv(
+        [lambda: rlpkg.make("CartPole-v1") for _ in range(num_envs)], autoreset_mode=MODES[mode]
+    )
+    obs_a, _ = venv.reset(seed=3)
+    obs_b, _ = sync.reset(seed=3)
+    np.testing.assert_array_equal(obs_a, obs_b)
+    rng = np.random.default_rng(3)
+    episodes_ended = 0
+    for step in range(steps):
+        actions = rng.integers(0, 2, size=num_envs)
+        a = venv.step(actions)
+        b = sync.step(actions)
+        for x, y in zip(a[:4], b[:4]):
+            np.testing.assert_array_equal(x, y, err_msg=f"step {step}")
+        done = a[2] | a[3]
+        episodes_ended += int(done.sum())
+        if mode == "same_step" and done.any():
+            np.testing.assert_array_equal(a[4]["_final_obs"], b[4]["_final_obs"])
+            for i in np.flatnonzero(done):
+                np.testing.assert_array_equal(a[4]["final_obs"][i], b[4]["final_obs"][i])
+        if mode == "disabled" and done.any():
+            obs_a, _ = venv.reset(options={"reset_mask": done})
+            obs_b, _ = sync.reset(options={"reset_mask": done})
+            np.testing.assert_array_equal(obs_a, obs_b)
+    assert episodes_ended > 100
+
+
+def test_step_returns_fresh_float32_arrays():
+    venv = rlpkg.make_vec("Pendulum-v1", 4)
+    obs, _ = venv.reset(seed=0)
+    first = obs.copy()
+    obs2, rewards, terminated, truncated, _ = venv.step(np.zeros((4, 1), dtype=np.float32))
+    assert obs.dtype == obs2.dtype == rewards.dtype == np.float32
+    assert terminated.dtype == truncated.dtype == np.bool_
+    assert obs2.base is None or not np.shares_memory(obs, obs2)
+    np.testing.assert_array_equal(obs, first)
+    assert venv.observation_space.shape == (4, 3) and venv.single_action_space.shape == (1,)
+
+
+def test_reset_mask_touches_only_masked_copies():
+    venv = rlpkg.make_vec("CartPole-v1", 4, autoreset_mode="disabled")
+    venv.reset(seed=1)
+    for _ in range(3):
+        obs, *_ = venv.step(np.ones(4, dtype=np.int64))
+    mask = np.array([False, True, False, False])
+    again, _ = venv.reset(seed=1, options={"reset_mask": mask})
+    fresh = rlpkg.make_vec("CartPole-v1", 4)
+    start, _ = fresh.reset(seed=1)
+    np.testing.assert_array_equal(again[1], start[1])
+    np.testing.assert_array_equal(again[~mask], obs[~mask])
+
+
+def test_seed_stride_keeps_workers_apart():
+    def first_rows(stride, seed):
+        venv = rlpkg.make_vec("CartPole-v1", 8, seed_stride=stride)
+        obs, _ = venv.reset(seed=seed)
+        return {row.tobytes() for row in obs}
+
+    assert not first_rows(8, 0) & first_rows(8, 1)
+    # With the default stride, worker 1's copies are worker 0's shifted by one.
+    assert len(first_rows(1, 0) & first_rows(1, 1)) == 7
+    # One seed per copy: copy i as copy 0 of make(...) reset with that seed.
+    venv = rlpkg.make_vec("CartPole-v1", 3)
+    obs, _ = venv.reset(seed=[10, 4, 99])
+    for i, seed in enumerate([10, 4, 99]):
+        single, _ = rlpkg.make("CartPole-v1").reset(seed=seed)
+        np.testing.assert_array_equal(obs[i], single)
+
+
+def test_registered_ids_build_through_gymnasium(small_transport):
+    rlpkg.register()
+    rlpkg.register()
+    env = gymnasium.make("rlpkg/Pendulum-v1")
+    obs, _ = env.reset(seed=2)
+    assert obs.shape == (3,)
+    venv = gymnasium.make_vec("rlpkg/CartPole-v1", num_envs=5, autoreset_mode="same_step")
+    assert isinstance(venv, gymnasium.vector.VectorEnv) and venv.num_envs == 5
+    assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    venv = gymnasium.make_vec("rlpkg/Transport-v0", num_envs=2, config=small_transport)
+    obs, _ = venv.reset(seed=0)
+    assert obs.shape == venv.observation_space.shape
+
+
+def test_dict_observations_give_the_critic_group(small_transport):
+    venv = rlpkg.make_vec("Transport-v0", 2, config=small_transport, obs_mode="dict", autoreset_mode="same_step")
+    obs, _ = venv.reset(seed=0)
+    assert set(obs) == {"policy", "critic"}
+    assert obs["critic"].shape[1] > obs["policy"].shape[1]
+    assert venv.observation_space["critic"].shape == obs["critic"].shape
+    out = venv.step(np.zeros((2, 3), dtype=np.float32))
+    assert "reward/progress" in out[4] and out[4]["_reward/progress"].all()
+    with pytest.raises(ValueError, match="no critic observation group"):
+        rlpkg.make_vec("CartPole-v1", 2, obs_mode="dict")
+
+
+def test_sb3_adapter_reports_terminal_observations():
+    from rlpkg.sb3 import VecEnvAdapter
+
+    venv = VecEnvAdapter("CartPole-v1", 4)
+    venv.seed(5)
+    obs = venv.reset()
+    assert obs.shape == (4, 4)
+    seen = False
+    for _ in range(200):
+        obs, rewards, dones, infos = venv.step(np.ones(4, dtype=np.int64))
+        for i in np.flatnonzero(dones):
+            seen = True
+            assert infos[i]["terminal_observation"].shape == (4,)
+            assert infos[i]["TimeLimit.truncated"] is False
+            assert not np.array_equal(infos[i]["terminal_observation"], obs[i])
+    assert seen
+    venv.close()

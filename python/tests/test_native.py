@@ -1,0 +1,115 @@
+"""The Rust core from Python: parity with Rust-only rollouts, the GIL, bad input."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import rlpkg
+from conftest import python_digest
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_cartpole_rollout_matches_rust(threads):
+    venv = rlpkg.make_vec("CartPole-v1", 64, autoreset_mode="same_step", num_threads=threads)
+    got = python_digest(venv, seed=7, steps=500)
+    assert got == rlpkg.rust_rollout_digest("CartPole-v1", 64, 500, 7, num_threads=threads)
+    assert got != rlpkg.rust_rollout_digest("CartPole-v1", 64, 500, 8)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_transport_rollout_matches_rust(threads, small_transport):
+    venv = rlpkg.make_vec(
+        "Transport-v0", 4, config=small_transport, autoreset_mode="same_step", num_threads=threads
+    )
+    got = python_digest(venv, seed=5, steps=50)
+    expected = rlpkg.rust_rollout_digest(
+        "Transport-v0", 4, 50, 5, config=small_transport, num_threads=threads
+    )
+    assert got == expected
+
+
+def test_pendulum_rollout_matches_rust():
+    venv = rlpkg.make_vec("Pendulum-v1", 8, autoreset_mode="next_step")
+    got = python_digest(venv, seed=1, steps=450)
+    assert got == rlpkg.rust_rollout_digest("Pendulum-v1", 8, 450, 1, autoreset_mode="next_step")
+
+
+def _python_loop_rate(seconds):
+    count, end = 0, time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        count += 1
+    return count / seconds
+
+
+def test_the_step_releases_the_gil(small_transport):
+    venv = rlpkg.make_vec("Transport-v0", 4, config=small_transport, num_threads=1)
+    venv.reset(seed=0)
+    actions = np.zeros((4, 3), dtype=np.float32)
+    solo = _python_loop_rate(1.0)
+    stop = threading.Event()
+    steps = [0]
+
+    def stepping():
+        while not stop.is_set():
+            venv.step(actions)
+            steps[0] += 1
+
+    worker = threading.Thread(target=stepping)
+    worker.start()
+    try:
+        time.sleep(0.2)
+        shared = _python_loop_rate(1.5)
+    finally:
+        stop.set()
+        worker.join()
+    assert steps[0] > 0
+    assert shared >= 0.3 * solo, f"python loop {shared:.0f}/s beside stepping, {solo:.0f}/s alone"
+
+
+def test_bad_input_raises(tmp_path, small_transport):
+    cartpole = rlpkg.make_vec("CartPole-v1", 4)
+    with pytest.raises(ValueError, match="step before reset"):
+        cartpole.step(np.zeros(4, dtype=np.int64))
+    cartpole.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(3,\); expected \(4,\)"):
+        cartpole.step(np.zeros(3, dtype=np.int64))
+    with pytest.raises(TypeError, match="expected integer indices"):
+        cartpole.step(np.zeros(4, dtype=np.float32))
+    with pytest.raises(ValueError, match="expected an index in 0..2"):
+        cartpole.step(np.array([0, 1, 2, 0]))
+    with pytest.raises(TypeError, match="dtype"):
+        cartpole.step(np.array(["a"] * 4))
+    with pytest.raises(ValueError, match="reset_mask"):
+        cartpole.reset(options={"reset_mask": np.ones(3, dtype=bool)})
+    with pytest.raises(ValueError, match="one per copy"):
+        cartpole.reset(seed=[1, 2])
+    pendulum = rlpkg.make_vec("Pendulum-v1", 2)
+    pendulum.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        pendulum.step(np.array([[0.0], [np.nan]], dtype=np.float32))
+    with pytest.raises(ValueError, match="unknown environment id 'Acrobot-v1'"):
+        rlpkg.make_vec("Acrobot-v1", 2)
+    with pytest.raises(ValueError, match="autoreset_mode"):
+        rlpkg.make_vec("CartPole-v1", 2, autoreset_mode="later")
+    with pytest.raises(ValueError, match="num_envs"):
+        rlpkg.make_vec("CartPole-v1", 0)
+    text = open(small_transport).read().replace("control_hz = 20.0", "control_hz = 20.0\ncontrl_hz = 3")
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(ValueError, match="contrl_hz"):
+        rlpkg.make_vec("Transport-v0", 2, config=bad)
+    with pytest.raises(ValueError, match="no such file"):
+        rlpkg.make_vec("Transport-v0", 2, config=tmp_path / "missing.toml")
+    # Disabled autoreset: stepping a finished copy raises until it is reset.
+    env = rlpkg.make("CartPole-v1")
+    env.reset(seed=0)
+    done = False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(1)
+        done = terminated or truncated
+    with pytest.raises(ValueError, match="episode ended"):
+        env.step(1)
+    env.reset()
+    env.step(0)
