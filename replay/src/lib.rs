@@ -29,6 +29,6 @@ pub mod workload;
 pub use error::ReplayError;
 pub use rollout::{
     get_param, mean_loss, rollout, rollout_scheduled, set_param, Candidate, FrameClock,
-    FrameObservation, Observer, RolloutOutcome, Schedule, PARAMETER_NAMES,
+    FrameObservation, Observer, RolloutOutcome, Schedule, SealFailure, PARAMETER_NAMES,
 };
 pub use target::{load_scene, Target};
