@@ -41,6 +41,9 @@ enum Command {
     /// Build scene configs (e.g. from a package's manifest.json).
     #[command(subcommand)]
     Scene(cmd::scene::SceneCommand),
+    /// Fit the suction seal's capacity to a dataset's failure flags.
+    #[command(subcommand)]
+    Seal(cmd::seal::SealCommand),
     /// Benchmarks that print throughput figures.
     #[command(subcommand)]
     Bench(cmd::bench::BenchCommand),
@@ -80,6 +83,7 @@ fn main() {
         Command::Posterior(args) => cmd::posterior::run(args),
         Command::Data(command) => cmd::data::run(command),
         Command::Scene(command) => cmd::scene::run(command),
+        Command::Seal(command) => cmd::seal::run(command),
         Command::Bench(command) => cmd::bench::run(command),
     };
     if let Err(err) = result {

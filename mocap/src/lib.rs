@@ -6,6 +6,7 @@ pub mod clean;
 pub mod dataset;
 pub mod derivative;
 pub mod description;
+pub mod detach;
 pub mod import;
 pub mod motive;
 pub mod robot;
@@ -14,3 +15,4 @@ pub use dataset::{
     load_trajectory, DataError, Dataset, ManifestEntry, MarkerFrames, Meta, ObjectTrack, Split,
     ToolTrack, Trajectory,
 };
+pub use detach::{scan_detachment, Detachment, DetachmentConfig, DetachmentScan};

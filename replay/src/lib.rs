@@ -9,6 +9,8 @@
 //!   the compared frames ([`Schedule`], [`FrameClock`]);
 //! * [`loss`]: the comparison with the recording: the package Chamfer distance (the one
 //!   implementation in the workspace), the object error, the paper's Table 1;
+//! * [`seal`]: seal calibration: every recording under a grid of seal capacities against the
+//!   recordings' failure flags and the detachment observed in their markers;
 //! * [`evaluate`]: per-marker errors, the sensitivity perturbation, the real-time factor;
 //! * [`synthetic`]: synthetic recordings made by the simulator from known parameters, with a real
 //!   recording's occlusion and marker noise (parameter-recovery checks);
@@ -22,6 +24,7 @@ pub mod error;
 pub mod evaluate;
 pub mod loss;
 pub mod rollout;
+pub mod seal;
 pub mod synthetic;
 pub mod target;
 pub mod workload;
@@ -29,6 +32,6 @@ pub mod workload;
 pub use error::ReplayError;
 pub use rollout::{
     get_param, mean_loss, rollout, rollout_scheduled, set_param, Candidate, FrameClock,
-    FrameObservation, Observer, RolloutOutcome, Schedule, PARAMETER_NAMES,
+    FrameObservation, Observer, RolloutOutcome, Schedule, SealFailure, PARAMETER_NAMES,
 };
 pub use target::{load_scene, Target};

@@ -13,7 +13,10 @@
 
 use std::sync::Arc;
 
-use rlpkg_sim::{DiscState, HealthEvent, Model, Params, SceneConfig, Simulator, SurfaceEmbedding};
+use rlpkg_sim::{
+    DiscState, HealthEvent, Model, NoSealReason, Params, SceneConfig, SealEventKind, Simulator,
+    SurfaceEmbedding,
+};
 
 use crate::error::ReplayError;
 use crate::loss::{LossWeights, TrajectoryLoss};
@@ -190,6 +193,45 @@ pub struct RolloutOutcome {
     pub loss: TrajectoryLoss,
     /// The health event that froze the environment, if it diverged.
     pub diverged: Option<HealthEvent>,
+    /// The first cup whose seal failed (did not seal, peeled, pulled off or slid), if any.
+    pub seal_failure: Option<SealFailure>,
+}
+
+/// The first cup of an environment whose suction seal failed, from the simulator's seal events.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SealFailure {
+    /// Cup index (the scene's `cups.angles_deg` order).
+    pub cup: usize,
+    /// How it failed.
+    pub kind: SealEventKind,
+    /// Recording time (s): the environment's time minus the scene's rest period.
+    pub t: f64,
+}
+
+impl SealFailure {
+    /// The failure mode in words: `not sealed (gap 25.0 mm)`, `peeled`, `pulled off`, `slid`.
+    pub fn mode(&self) -> String {
+        seal_mode(&self.kind)
+    }
+}
+
+/// A seal event kind in words (see [`SealFailure::mode`]).
+pub fn seal_mode(kind: &SealEventKind) -> String {
+    match kind {
+        SealEventKind::NotSealed(NoSealReason::Gap(m)) => {
+            format!("not sealed: gap {:.1} mm", 1e3 * m)
+        }
+        SealEventKind::NotSealed(NoSealReason::Tilt(deg)) => {
+            format!("not sealed: tilt {deg:.1} deg")
+        }
+        SealEventKind::NotSealed(NoSealReason::Fold(m)) => {
+            format!("not sealed: fold {:.1} mm", 1e3 * m)
+        }
+        SealEventKind::Peeled => "peeled".to_string(),
+        SealEventKind::PulledOff => "pulled off".to_string(),
+        SealEventKind::Slid => "slid".to_string(),
+        SealEventKind::Dropped => "dropped".to_string(),
+    }
 }
 
 /// Simulates every candidate on every target in one batch; returns outcomes `[candidate][target]`.
@@ -261,6 +303,7 @@ pub fn rollout_scheduled(
                 .map(|t| RolloutOutcome {
                     loss: TrajectoryLoss::new(t.id.clone()),
                     diverged: None,
+                    seal_failure: None,
                 })
                 .collect()
         })
@@ -336,6 +379,22 @@ pub fn rollout_scheduled(
     for event in sim.health_events() {
         let (c, t) = slot_of_env[event.env];
         outcomes[c][t].diverged.get_or_insert(*event);
+    }
+    let rest = f64::from(model.config.cups.rest_time_s);
+    for event in sim.seal_events() {
+        let Some(cup) = event.cup else {
+            continue; // a drop follows the failure of the last cup
+        };
+        let (c, t) = slot_of_env[event.env];
+        let failure = SealFailure {
+            cup,
+            kind: event.kind,
+            t: event.time - rest,
+        };
+        let first = &mut outcomes[c][t].seal_failure;
+        if first.is_none_or(|earlier| failure.t < earlier.t) {
+            *first = Some(failure);
+        }
     }
     observer.finish(&sim);
     Ok(outcomes)
@@ -544,6 +603,39 @@ mod tests {
         }));
         expected.push(("finish", last));
         assert_eq!(log.0, expected);
+    }
+
+    #[test]
+    fn seal_failures_are_reported_per_environment() {
+        // A vacuum far too weak to carry the package: every cup lets go once the tool lifts; the
+        // same scene without the seal model loses none.
+        let root = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../configs/scenes/physical-soft-film.toml"
+        );
+        let mut scene = load_scene(root, Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        scene.health.object_outside = false;
+        scene.seal.vacuum_kpa = 0.01;
+        let target = Target::new(&recorded("HHLHL"), Some(0.3), false).unwrap();
+        let weak = Candidate::of_scene(&scene);
+        let model = Arc::new(Model::new(&scene).unwrap());
+        let targets = [target.clone(), target];
+        let out = rollout(&model, &targets, &[weak], &mut ()).unwrap();
+        let failure = out[0][0].seal_failure.expect("a cup fails");
+        assert!(failure.cup < scene.cups.angles_deg.len());
+        assert!((0.0..=0.3).contains(&failure.t), "t = {}", failure.t);
+        assert!(!failure.mode().is_empty());
+        assert_eq!(
+            out[0][1].seal_failure,
+            Some(failure),
+            "same target, same failure"
+        );
+
+        scene.seal.enabled = false;
+        let model = Arc::new(Model::new(&scene).unwrap());
+        let out = rollout(&model, &targets[..1], &[weak], &mut ()).unwrap();
+        assert_eq!(out[0][0].seal_failure, None);
     }
 
     #[test]

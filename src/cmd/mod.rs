@@ -7,5 +7,6 @@ pub mod eval;
 pub mod export;
 pub mod posterior;
 pub mod scene;
+pub mod seal;
 pub mod simulate;
 pub mod train;

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use rlpkg_mocap::Trajectory;
 use rlpkg_replay::loss::chamfer_distance;
+use rlpkg_replay::SealFailure;
 use rlpkg_sim::Model;
 
 use crate::error::output_error;
@@ -32,6 +33,8 @@ pub struct Outcome {
     pub gif: Option<(PathBuf, usize)>,
     /// The health event that ended the replay early.
     pub health: Option<rlpkg_sim::HealthEvent>,
+    /// The first cup whose seal failed.
+    pub seal_failure: Option<SealFailure>,
     /// The first frame whose simulated values were not finite (frame, recording time): the replay
     /// ended there, and the files hold the frames before it.
     pub non_finite: Option<(usize, f64)>,
@@ -65,6 +68,7 @@ impl Outcome {
             stills: Vec::new(),
             gif: None,
             health: None,
+            seal_failure: None,
             non_finite: None,
             substeps: 0,
             simulated_s: 0.0,
@@ -138,7 +142,7 @@ impl Outcome {
                 f64::NAN
             }
         };
-        serde_json::json!({
+        let mut summary = serde_json::json!({
             "trajectory": recording.id,
             "config": config_source,
             "grid": model.grid,
@@ -170,7 +174,26 @@ impl Outcome {
                 "stills": self.stills,
                 "gif": self.gif.as_ref().map(|g| &g.0),
             },
-        })
+        });
+        // Only when a cup failed: a replay without seal failures keeps its summary's keys.
+        if let Some(failure) = &self.seal_failure {
+            summary["seal_failure"] = serde_json::json!({
+                "cup": failure.cup,
+                "mode": failure.mode(),
+                "t_s": failure.t,
+            });
+        }
+        summary
+    }
+
+    /// The report line of the first seal failure: `cup k failed (mode) at t = ... s`.
+    pub fn seal_line(failure: &SealFailure) -> String {
+        format!(
+            "cup {} failed ({}) at t = {:.3} s",
+            failure.cup,
+            failure.mode(),
+            failure.t
+        )
     }
 
     /// Prints the closing report.
@@ -189,6 +212,9 @@ impl Outcome {
             1e3 * mean(&self.object_error),
             1e3 * self.object_error.last().copied().unwrap_or(f64::NAN)
         );
+        if let Some(failure) = &self.seal_failure {
+            println!("{}", Self::seal_line(failure));
+        }
         println!(
             "wrote {}/{{markers_sim,object_sim,metrics}}.csv and summary.json",
             out.display()
@@ -207,6 +233,19 @@ impl Outcome {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_seal_failure_is_reported_in_one_line() {
+        let failure = SealFailure {
+            cup: 2,
+            kind: rlpkg_sim::SealEventKind::PulledOff,
+            t: 1.23456,
+        };
+        assert_eq!(
+            Outcome::seal_line(&failure),
+            "cup 2 failed (pulled off) at t = 1.235 s"
+        );
+    }
 
     #[test]
     fn chamfer_is_the_symmetric_mean_nearest_distance() {

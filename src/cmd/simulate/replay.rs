@@ -122,6 +122,7 @@ impl Replay {
             Ok(outcomes) => {
                 let mut outcome = recorder.outcome;
                 outcome.health = outcomes[0][0].diverged;
+                outcome.seal_failure = outcomes[0][0].seal_failure;
                 outcome
             }
             Err(ReplayError::Stopped) => {
