@@ -217,11 +217,9 @@ struct Summary<'a> {
 
 /// Runs `rlpkg optimize`.
 pub fn run(args: OptimizeArgs) -> anyhow::Result<()> {
-    let mut config = OptimizeConfig::load(&args.config)?;
-    if let Some(out) = &args.out {
-        config.out_dir = out.clone();
-    }
-    let out = config.out_dir.clone();
+    let config = OptimizeConfig::load(&args.config)?;
+    // summary.json echoes the config as written; --out only moves the files.
+    let out = args.out.clone().unwrap_or_else(|| config.out_dir.clone());
     if out.exists() && !out.is_dir() {
         return Err(input_error(format!(
             "{}: is a file; expected a folder (`out_dir` of {} or --out)",
