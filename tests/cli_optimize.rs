@@ -136,7 +136,10 @@ fn optimisation_lowers_the_cost_and_writes_the_same_files_on_one_and_two_threads
     // The trajectory reads as a robot file: the header, then time increasing from 0.
     let csv = String::from_utf8(one[4].1.clone()).unwrap();
     let mut lines = csv.lines();
-    assert!(lines.next().unwrap().starts_with("time_s,pos_x,pos_y,pos_z,quat_x"));
+    assert!(lines
+        .next()
+        .unwrap()
+        .starts_with("time_s,pos_x,pos_y,pos_z,quat_x"));
     let times: Vec<f64> = lines
         .map(|l| l.split(',').next().unwrap().parse().unwrap())
         .collect();
@@ -152,7 +155,11 @@ fn bad_config_keys_exit_2_naming_the_key() {
         ("packages = 2", "packages = 0", "conditions.packages"),
         ("count = 3", "count = 1", "knots.count"),
         ("weight = 0.5", "weight = 1.5", "risk.weight"),
-        ("smoothing = 0.8", "smoothing = 0.8\npopulaton = 3", "populaton"),
+        (
+            "smoothing = 0.8",
+            "smoothing = 0.8\npopulaton = 3",
+            "populaton",
+        ),
         ("horizon_s = 2.0", "horizon_s = -2.0", "knots.horizon_s"),
     ] {
         setup(dir.path(), &TINY.replace(from, to));

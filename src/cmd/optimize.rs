@@ -124,8 +124,8 @@ impl OptimizeConfig {
     fn load(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| input_error(format!("{}: cannot read: {e}", path.display())))?;
-        let config: Self = toml::from_str(&text)
-            .map_err(|e| input_error(format!("{}: {e}", path.display())))?;
+        let config: Self =
+            toml::from_str(&text).map_err(|e| input_error(format!("{}: {e}", path.display())))?;
         config.validate(path)?;
         Ok(config)
     }
@@ -244,7 +244,12 @@ pub fn run(args: OptimizeArgs) -> anyhow::Result<()> {
         transport.limits.max_tilt_offset_deg.to_radians(),
     );
     let block = |v: f64| vec![v; curve.knots];
-    let mean = [block(config.knots.initial_speed_m_s), block(0.0), block(0.0)].concat();
+    let mean = [
+        block(config.knots.initial_speed_m_s),
+        block(0.0),
+        block(0.0),
+    ]
+    .concat();
     let std = [
         block(config.knots.speed_std_m_s),
         block(config.knots.tilt_std_deg.to_radians()),

@@ -510,8 +510,22 @@ mod tests {
             cem.update(&candidates, &costs);
         }
         assert!(cost(&cem.mean) < 1e-4 * start, "{:?}", cem.mean);
-        assert!(Cem::new(vec![0.0], vec![1.0], vec![0.0], vec![1.0], settings(4, 5, 1.0)).is_err());
-        assert!(Cem::new(vec![0.0], vec![1.0], vec![0.0], vec![1.0], settings(4, 2, 0.0)).is_err());
+        assert!(Cem::new(
+            vec![0.0],
+            vec![1.0],
+            vec![0.0],
+            vec![1.0],
+            settings(4, 5, 1.0)
+        )
+        .is_err());
+        assert!(Cem::new(
+            vec![0.0],
+            vec![1.0],
+            vec![0.0],
+            vec![1.0],
+            settings(4, 2, 0.0)
+        )
+        .is_err());
     }
 
     #[test]
@@ -558,7 +572,10 @@ mod tests {
         assert_ne!(costs[0], costs[1]);
         assert!(costs.iter().flatten().all(|c| c.is_finite()));
         // The same again from the same starts.
-        assert_eq!(problem.costs(&[slow.clone(), fast], |_| {}).unwrap()[0], costs[0]);
+        assert_eq!(
+            problem.costs(&[slow.clone(), fast], |_| {}).unwrap()[0],
+            costs[0]
+        );
         let trace = problem.trace(&slow).unwrap();
         assert!(trace.len() > 2);
         assert_eq!(trace[0].time_s, 0.0);
