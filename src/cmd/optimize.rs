@@ -298,9 +298,7 @@ pub fn run(args: OptimizeArgs) -> anyhow::Result<()> {
     let optimising = Instant::now();
     for iteration in 0..config.cem.iterations {
         let candidates = cem.candidates();
-        let package_costs = problem.costs(&candidates, |_| {
-            let _ = crate::interrupt::check();
-        })?;
+        let package_costs = problem.costs(&candidates)?;
         crate::interrupt::check()?;
         let costs: Vec<f64> = package_costs.iter().map(|c| risk.of(c)).collect();
         if iteration == 0 {

@@ -316,13 +316,8 @@ impl OpenLoopProblem {
     }
 
     /// Each candidate's cost (minus its episode return) on each package: `costs[c][k]`. At most
-    /// `population` candidates; copy `c x K + k` runs candidate `c` on package `k`, and
-    /// `on_step` is called after every control step with the copies still running.
-    pub fn costs(
-        &mut self,
-        candidates: &[Vec<f64>],
-        mut on_step: impl FnMut(usize),
-    ) -> Result<Vec<Vec<f64>>, EnvError> {
+    /// `population` candidates; copy `c x K + k` runs candidate `c` on package `k`.
+    pub fn costs(&mut self, candidates: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, EnvError> {
         let k = self.packages();
         if candidates.len() > self.population
             || candidates.iter().any(|c| c.len() != self.curve.dimension())
@@ -362,7 +357,6 @@ impl OpenLoopProblem {
                     done[copy] = buffers.done(copy);
                 }
             }
-            on_step(done.iter().filter(|d| !**d).count());
         }
         Ok((0..candidates.len())
             .map(|c| (0..k).map(|p| -returns[c * k + p]).collect())
@@ -421,8 +415,9 @@ mod tests {
         for (i, k) in knots.iter().enumerate() {
             assert!((curve.value(&knots, 0.5 * i as f64) - k).abs() < 1e-12);
         }
-        assert_eq!(curve.value(&knots, 5.0), 0.2);
-        assert_eq!(curve.value(&knots, -1.0), 0.1);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(curve.value(&knots, 5.0), 0.2));
+        assert!(close(curve.value(&knots, -1.0), 0.1));
         let line = [1.0, 1.5, 2.0, 2.5, 3.0];
         for j in 0..=40 {
             let t = 0.05 * j as f64;
@@ -435,7 +430,8 @@ mod tests {
         assert!((left - right).abs() < 1e-4, "{left} {right}");
         // The decision vector's three blocks are the three actions.
         let x: Vec<f64> = [[0.5; 5], [0.1; 5], [-0.2; 5]].concat();
-        assert_eq!(curve.actions(&x, 0.7), [0.5, 0.1, -0.2]);
+        let actions = curve.actions(&x, 0.7);
+        assert!(close(actions[0], 0.5) && close(actions[1], 0.1) && close(actions[2], -0.2));
         assert_eq!(curve.dimension(), 15);
     }
 
@@ -550,7 +546,8 @@ mod tests {
             quantile: 0.875,
             weight: 1.0,
         };
-        assert!((between.of(&costs) - 8.5).abs() < 1e-12);
+        // The 0.875 quantile of 1, 2, 3, 4, 10 lies halfway between 4 and 10.
+        assert!((between.of(&costs) - 7.0).abs() < 1e-12);
     }
 
     #[test]
@@ -565,17 +562,14 @@ mod tests {
         let slow: Vec<f64> = [[0.3; 4], [0.0; 4], [0.0; 4]].concat();
         let fast: Vec<f64> = [[0.8; 4], [0.05; 4], [0.0; 4]].concat();
         let costs = problem
-            .costs(&[slow.clone(), fast.clone(), slow.clone()], |_| {})
+            .costs(&[slow.clone(), fast.clone(), slow.clone()])
             .unwrap();
         assert_eq!(costs.len(), 3);
         assert_eq!(costs[0], costs[2]);
         assert_ne!(costs[0], costs[1]);
         assert!(costs.iter().flatten().all(|c| c.is_finite()));
         // The same again from the same starts.
-        assert_eq!(
-            problem.costs(&[slow.clone(), fast], |_| {}).unwrap()[0],
-            costs[0]
-        );
+        assert_eq!(problem.costs(&[slow.clone(), fast]).unwrap()[0], costs[0]);
         let trace = problem.trace(&slow).unwrap();
         assert!(trace.len() > 2);
         assert_eq!(trace[0].time_s, 0.0);
