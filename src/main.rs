@@ -32,6 +32,8 @@ enum Command {
     Simulate(cmd::simulate::SimulateArgs),
     /// Fit simulator parameters to recorded trajectories with Bayesian optimisation.
     Calibrate(cmd::calibrate::CalibrateArgs),
+    /// Optimise the transport task's open-loop command with the cross-entropy method.
+    Optimize(cmd::optimize::OptimizeArgs),
     /// Approximate posterior over a calibration's parameters from its evaluations (no simulation).
     Posterior(cmd::posterior::PosteriorArgs),
     /// Import and clean motion-capture data.
@@ -79,6 +81,7 @@ fn main() {
         Command::Export(args) => cmd::export::run(args),
         Command::Simulate(args) => cmd::simulate::run(args),
         Command::Calibrate(args) => cmd::calibrate::run(args),
+        Command::Optimize(args) => cmd::optimize::run(args),
         Command::Posterior(args) => cmd::posterior::run(args),
         Command::Data(command) => cmd::data::run(command),
         Command::Scene(command) => cmd::scene::run(command),

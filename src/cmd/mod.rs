@@ -5,6 +5,7 @@ pub mod calibrate;
 pub mod data;
 pub mod eval;
 pub mod export;
+pub mod optimize;
 pub mod posterior;
 pub mod scene;
 pub mod seal;

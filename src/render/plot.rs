@@ -159,6 +159,49 @@ pub fn write_loss_plot(path: &Path, target: &Target, loss: &TrajectoryLoss) -> a
     })
 }
 
+/// Cost per iteration of an optimisation: one line per named series of `(iteration, cost)`.
+pub fn write_cost_plot(
+    path: &Path,
+    title: &str,
+    series: &[(&str, Vec<(f64, f64)>)],
+) -> anyhow::Result<()> {
+    let points = || series.iter().flat_map(|(_, s)| s.iter());
+    let (x0, x1) = extent(points().map(|p| p.0));
+    let (y0, y1) = extent(points().map(|p| p.1).filter(|v| v.is_finite()));
+    let (x1, pad) = (x1.max(x0 + 1.0), ((y1 - y0) * 0.05).max(1e-3));
+    write_plot(path, |area| {
+        let mut chart = ChartBuilder::on(area)
+            .caption(title, ("sans-serif", 22))
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(x0..x1, y0 - pad..y1 + pad)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("iteration")
+            .y_desc("cost")
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        for (k, (name, line)) in series.iter().enumerate() {
+            let colour = DRIVER_COLOURS[k % DRIVER_COLOURS.len()];
+            chart
+                .draw_series(LineSeries::new(line.clone(), &colour))
+                .map_err(|e| anyhow::anyhow!("{e}"))?
+                .label(*name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok(())
+    })
+}
+
 fn extent(values: impl Iterator<Item = f64>) -> (f64, f64) {
     values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
         (lo.min(v), hi.max(v))

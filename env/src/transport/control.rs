@@ -7,7 +7,7 @@ use glam::{DQuat, DVec3};
 use rlpkg_sim::ToolCommand;
 
 use super::geometry::{quat, rotation_between, v3};
-use super::profile::{plan_path_profile, MotionLimits, PathProfile};
+use super::profile::{minimum_jerk, plan_path_profile, MotionLimits, PathProfile};
 use super::{sim_error, Episode, Transport, TransportPath};
 use crate::{check_action_len, EnvError};
 
@@ -20,7 +20,37 @@ const PATH_END_SNAP_M: f64 = 1e-3;
 /// without ringing (the lag's recurrence has both roots at 0.5 in magnitude).
 const PROFILE_LAG_GAIN: f64 = 0.5;
 
+/// How the nominal orientation tilts along the path, from the pick orientation to the target tilt
+/// at the place pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TiltSchedule {
+    /// The recording's tilt profile at the same fraction of the path
+    /// ([`TransportPath::tilt_fraction`]): what the policy's tilt offsets are relative to.
+    #[default]
+    Recorded,
+    /// The [`minimum_jerk`] blend over the fraction of the path covered: monotone and smooth,
+    /// so the tilt never turns back and a plan along the path is limited by the path's speed,
+    /// acceleration and jerk rather than by the recording's tilt noise (the profile baseline).
+    MinimumJerk,
+}
+
 impl Transport {
+    /// Sets how the nominal orientation tilts along the path (the recorded profile unless set).
+    /// The place pose is the same under every schedule.
+    pub fn set_tilt_schedule(&mut self, schedule: TiltSchedule) {
+        self.tilt_schedule = schedule;
+    }
+
+    /// The nominal tilt about world x at arc length `s` of `episode`'s path (rad).
+    fn nominal_tilt(&self, episode: &Episode, s: f64) -> f64 {
+        let path = &self.paths[episode.path];
+        let fraction = match self.tilt_schedule {
+            TiltSchedule::Recorded => path.tilt_fraction(s),
+            TiltSchedule::MinimumJerk => minimum_jerk(s / path.length_m),
+        };
+        episode.target_tilt * fraction
+    }
+
     /// The scripted baseline's actions for every copy now: the recorded path's own progress
     /// over time, played `time_scale` times as fast (1 = as recorded, 2 = twice as fast), as the
     /// path speed that brings the reference to where the recording was at the end of the next
@@ -51,8 +81,9 @@ impl Transport {
 
     /// The time-optimal, jerk-limited progress along each copy's path now ([`plan_path_profile`]):
     /// from rest at the pick pose to rest at the place pose under `limits` on the reference
-    /// pose's linear and angular speed, acceleration and jerk, the tilt following the episode's
-    /// tilt profile. Plan after a reset; [`Transport::profile_actions`] plays the plans.
+    /// pose's linear and angular speed, acceleration and jerk, the tilt following the nominal
+    /// tilt ([`Transport::set_tilt_schedule`]). Plan after a reset; [`Transport::profile_actions`]
+    /// plays the plans.
     pub fn plan_profiles(&self, limits: &MotionLimits) -> Result<Vec<PathProfile>, EnvError> {
         self.episodes
             .iter()
@@ -61,7 +92,7 @@ impl Transport {
                 let pose = |s: f64| {
                     (
                         self.reference_position(episode, s),
-                        episode.target_tilt * path.tilt_fraction(s),
+                        self.nominal_tilt(episode, s),
                     )
                 };
                 plan_path_profile(path.length_m, pose, limits, self.dt)
@@ -100,10 +131,10 @@ impl Transport {
         path.position(s) + episode.start_offset + episode.goal_jitter * (s / path.length_m)
     }
 
-    /// Nominal orientation at arc length `s`: the recorded tilt profile scaled to the target.
+    /// Nominal orientation at arc length `s`: the pick orientation tilted by the nominal tilt.
     fn nominal_orientation(&self, episode: &Episode, s: f64) -> DQuat {
-        let path = &self.paths[episode.path];
-        DQuat::from_rotation_x(episode.target_tilt * path.tilt_fraction(s)) * path.start_orientation
+        DQuat::from_rotation_x(self.nominal_tilt(episode, s))
+            * self.paths[episode.path].start_orientation
     }
 
     /// Place pose of `episode`.

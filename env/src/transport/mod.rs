@@ -46,6 +46,7 @@
 //! - `reward`: failure, success, reward terms and the info row of a step;
 //! - `snapshot`: the saved state for checkpoints (serde; the flat layout is read too);
 //! - `evaluate`: episode outcomes and traces for evaluation;
+//! - `optimize`: the cross-entropy method over an open-loop command's knots (`rlpkg optimize`);
 //! - `geometry`: vector and rotation helpers.
 
 mod config;
@@ -54,6 +55,7 @@ mod episode;
 mod evaluate;
 mod geometry;
 mod observe;
+mod optimize;
 mod path;
 mod profile;
 mod recordings;
@@ -73,6 +75,7 @@ pub use config::{
     TransportLimits, TransportRandomization, RECORDED_PEAK_ACCEL_M_S2,
     RECORDED_PEAK_ANGULAR_SPEED_RAD_S, RECORDED_PEAK_SPEED_M_S,
 };
+pub use control::TiltSchedule;
 pub use episode::EpisodeConditions;
 pub use evaluate::{
     run_episodes, run_traced_episodes, Ending, EpisodeOutcome, OutcomeSummary, TracePoint,
@@ -80,9 +83,12 @@ pub use evaluate::{
 pub use observe::{
     critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS, WRIST_OBSERVATIONS,
 };
+pub use optimize::{
+    Cem, CemSettings, KnotCurve, OpenLoopProblem, RiskMeasure, ToolSample, ACTIONS,
+};
 pub use path::TransportPath;
 pub use profile::{
-    plan_path_profile, LimitUse, MotionLimits, PathProfile, JERK_RAMP_S, PLAN_STEP_S,
+    minimum_jerk, plan_path_profile, LimitUse, MotionLimits, PathProfile, JERK_RAMP_S, PLAN_STEP_S,
 };
 pub use recordings::{load_paths, recorded_timings};
 pub use reward::{info_names, Failure, RewardTerms, StepOutcome, REWARD_TERM_NAMES};
@@ -132,6 +138,8 @@ pub struct Transport {
     retire_finished: bool,
     /// Copies retired since the last reset (evaluation mode).
     retired: Vec<bool>,
+    /// How the nominal orientation tilts along the path.
+    tilt_schedule: TiltSchedule,
 }
 
 fn sim_error(e: impl std::fmt::Display) -> EnvError {
@@ -202,6 +210,7 @@ impl Transport {
             dt,
             retire_finished: false,
             retired: vec![false; num_envs],
+            tilt_schedule: TiltSchedule::Recorded,
         })
     }
 

@@ -1,13 +1,15 @@
 //! A time-optimal, jerk-limited motion profile along an episode's path: the baseline an engineer
-//! would program first. The progress along the path `s(t)` goes from the pick pose at rest to the
+//! would program. The progress along the path `s(t)` goes from the pick pose at rest to the
 //! place pose at rest as fast as limits on the tool's linear speed, acceleration and jerk and on
-//! its angular speed, acceleration and jerk allow; the tilt follows the path's tilt profile at
-//! the same progress (co-scheduled), as the nominal orientation of the path-following controller
-//! does.
+//! its angular speed, acceleration and jerk allow; the tilt is a function of the same progress
+//! (co-scheduled): either the recorded tilt profile or, for the profile baseline, the
+//! [`minimum_jerk`] blend from the pick orientation to the target tilt over the whole path.
 //!
 //! The limits on `s` vary along the path: the recorded paths tilt the tool within their last
-//! 0.3 m, and turn the tilt back and forth there, so the path speed the angular limits allow is
-//! ten times lower there than on the level part. The plan is therefore time-optimal path
+//! 0.3 m, and turn the tilt back and forth there, so the path speed the angular limits allow
+//! under the recorded tilt is ten times lower there than on the level part; the smooth blend
+//! spreads the tilt over the path, so the path's speed, acceleration and jerk limits set the
+//! pace instead. The plan is time-optimal path
 //! parameterisation rather than one state-to-state profile under constant limits (what Ruckig
 //! computes):
 //! 1. per interval of an even arc-length grid, the largest path speed and acceleration are the
@@ -42,6 +44,14 @@ const STRETCH_TOLERANCE: f64 = 1e-9;
 
 /// Extra margin on each slowdown, so the rounds converge rather than approach the limit forever.
 const SHRINK_MARGIN: f64 = 1.002;
+
+/// The minimum-jerk blend from 0 to 1 over `u` in [0, 1] (`10u³ - 15u⁴ + 6u⁵`, clamped outside):
+/// monotone, with zero slope and curvature at both ends, so a tilt scheduled by it starts and
+/// stops at rest.
+pub fn minimum_jerk(u: f64) -> f64 {
+    let u = u.clamp(0.0, 1.0);
+    u * u * u * (10.0 + u * (-15.0 + 6.0 * u))
+}
 
 /// Limits on the tool's motion (SI; angular limits on the tilt about world x).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -593,6 +603,95 @@ mod tests {
         assert!(level_part.unwrap() < 0.8 / tilting_speed, "{level_part:?}");
         // Rotating 135 degrees at no more than the angular speed limit takes its time.
         assert!(profile.duration_s > 3.0 * theta / limits.angular_speed_rad_s);
+    }
+
+    #[test]
+    fn the_minimum_jerk_blend_is_monotone_and_at_rest_at_both_ends() {
+        assert_eq!(minimum_jerk(0.0), 0.0);
+        assert_eq!(minimum_jerk(1.0), 1.0);
+        assert_eq!(minimum_jerk(-0.5), 0.0);
+        assert_eq!(minimum_jerk(1.5), 1.0);
+        assert!((minimum_jerk(0.5) - 0.5).abs() < 1e-12);
+        let h = 1e-4;
+        let values: Vec<f64> = (0..=10_000).map(|k| minimum_jerk(k as f64 * h)).collect();
+        assert!(values.windows(2).all(|w| w[1] > w[0]));
+        // Zero slope at the ends, the largest slope 15/8 in the middle.
+        assert!(values[1] / h < 1e-6 && (1.0 - values[9_999]) / h < 1e-6);
+        assert!(((values[5_001] - values[4_999]) / (2.0 * h) - 1.875).abs() < 1e-6);
+    }
+
+    /// The bent path of [`bent_path`] with its tilt the minimum-jerk blend to `tilt` over the
+    /// whole path (what the profile baseline plans along).
+    fn smoothly_tilted(s: f64, tilt: f64) -> (DVec3, f64) {
+        let length = 0.4 + std::f64::consts::FRAC_PI_2 * 0.3 + 0.6;
+        (bent_path(s).0, tilt * minimum_jerk(s / length))
+    }
+
+    #[test]
+    fn a_smoothly_tilted_plan_respects_every_limit_tilts_monotonely_and_stops_at_the_goal() {
+        let length = 0.4 + std::f64::consts::FRAC_PI_2 * 0.3 + 0.6;
+        for (scale, tilt_deg) in [(0.5, 30.0), (1.0, 60.0), (2.0, 60.0), (4.0, 45.0)] {
+            let tilt = f64::to_radians(tilt_deg);
+            let pose = |s| smoothly_tilted(s, tilt);
+            let limits = tool().scaled(scale);
+            let profile = plan_path_profile(length, pose, &limits, DT).unwrap();
+            // Every limit holds for the reference pose sampled at the control interval...
+            let used = profile.limit_use(pose, &limits, DT);
+            assert!(
+                used.worst() <= 1.0 + 1e-9 && used.worst() > 0.95,
+                "x{scale}: {used:?}"
+            );
+            // ...the tilt never turns back and ends at the target...
+            let samples = profile.sampled_poses(pose, DT);
+            assert!(
+                samples.windows(2).all(|w| w[1].1 >= w[0].1),
+                "x{scale}: the tilt turns back"
+            );
+            let (end_position, end_tilt) = *samples.last().unwrap();
+            assert!(end_position.distance(bent_path(length).0) < 1e-9);
+            assert!((end_tilt - tilt).abs() < 1e-12);
+            // ...and the plan arrives at rest.
+            assert_eq!(profile.at(profile.duration_s), (length, 0.0));
+            let (_, v) = profile.at(profile.duration_s - 1e-9);
+            assert!(v.abs() < 1e-4, "x{scale}: {v} m/s at the end");
+        }
+    }
+
+    #[test]
+    fn the_smooth_tilt_is_faster_than_a_tilt_turning_back_and_forth() {
+        // The same path and target tilt: once within 0.3 m turning back and forth (as the
+        // recordings do near the place pose), once blended over the path.
+        let theta = 45f64.to_radians();
+        let zigzag = |s: f64| {
+            let u = ((s - 1.0) / 0.1).clamp(0.0, 3.0);
+            let tilt = if u < 1.0 {
+                u
+            } else if u < 2.0 {
+                2.0 - u
+            } else {
+                u - 2.0
+            };
+            (DVec3::new(s, 0.0, 0.0), theta * tilt)
+        };
+        let smooth = |s: f64| (DVec3::new(s, 0.0, 0.0), theta * minimum_jerk(s / 1.3));
+        let limits = tool();
+        let noisy = plan_path_profile(1.3, zigzag, &limits, DT).unwrap();
+        let blended = plan_path_profile(1.3, smooth, &limits, DT).unwrap();
+        assert!(
+            blended.duration_s < 0.7 * noisy.duration_s,
+            "{} s against {} s",
+            blended.duration_s,
+            noisy.duration_s
+        );
+        // Along a straight path the smooth tilt leaves the path's own limits in charge: within
+        // a few control intervals of the closed-form S-curve time.
+        let (v, a, j) = (limits.speed_m_s, limits.accel_m_s2, limits.jerk_m_s3);
+        let s_curve = 1.3 / v + v / a + a / j;
+        assert!(
+            blended.duration_s < s_curve + 4.0 * DT,
+            "{} s against {s_curve} s",
+            blended.duration_s
+        );
     }
 
     #[test]

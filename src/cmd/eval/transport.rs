@@ -1,7 +1,8 @@
 //! `rlpkg eval runs/<transport run>` and `rlpkg eval --policy <file.onnx> --config <file.toml>`:
 //! the trained policy (the run's checkpoint, or the exported file through tract), the scripted
 //! baseline (the recorded high-velocity path, time-scaled), the profile baseline (the time-optimal,
-//! jerk-limited motion along the episode's path under scaled tool limits) and the recorded
+//! jerk-limited motion along the episode's path under scaled tool limits, the tilt a smooth blend
+//! over the path) and the recorded
 //! baselines over the same seeded, randomised episodes, side by side.
 
 use std::path::{Path, PathBuf};
@@ -12,7 +13,7 @@ use rlpkg_agents::export::OnnxPolicy;
 use rlpkg_agents::TrainedPolicy;
 use rlpkg_env::transport::{
     load_paths, load_scene, recorded_timings, run_traced_episodes, MotionLimits, OutcomeSummary,
-    PathProfile, TracePoint, TransportConfig, TransportPath,
+    PathProfile, TiltSchedule, TracePoint, TransportConfig, TransportPath,
 };
 use rlpkg_env::Transport;
 use rlpkg_vec_env::{EnvError, VecEnv};
@@ -194,6 +195,7 @@ fn evaluate(
     for &scale in &args.profile {
         let limits = base_limits.scaled(scale);
         let mut env = make().map_err(input_error)?;
+        env.set_tilt_schedule(TiltSchedule::MinimumJerk);
         // Planned once per episode, right after the reset that draws it.
         let mut plans: Option<Vec<PathProfile>> = None;
         let (outcomes, _) = run_traced_episodes::<anyhow::Error>(&mut env, seed, &[], |env, _| {
@@ -296,8 +298,8 @@ fn evaluate(
     if let Some(p) = &report.profile {
         let l = &p.base_limits;
         text += &format!(
-            "profile xS = the time-optimal, jerk-limited motion along the episode's path with S x \
-             the tool's limits: {:.3} m/s, {:.3} m/s^2, {:.3} m/s^3, {:.3} rad/s, {:.3} rad/s^2, \
+            "profile xS = the time-optimal, jerk-limited motion along the episode's path, the tilt \
+             a minimum-jerk blend over the path, with S x the tool's limits: {:.3} m/s, {:.3} m/s^2, {:.3} m/s^3, {:.3} rad/s, {:.3} rad/s^2, \
              {:.3} rad/s^3\n",
             l.speed_m_s,
             l.accel_m_s2,

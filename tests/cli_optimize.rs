@@ -1,0 +1,172 @@
+//! End-to-end tests of `rlpkg optimize <config.toml>` on a tiny transport scene: the optimised
+//! command costs less than the one it starts from, the output folder is byte-identical whatever
+//! the number of threads, and a bad config exits 2 naming the key.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn rlpkg(args: &[&str], dir: &Path, threads: &str) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(args)
+        .current_dir(dir)
+        .env("RAYON_NUM_THREADS", threads)
+        .output()
+        .expect("rlpkg runs")
+}
+
+fn ok(output: &Output) -> String {
+    assert!(
+        output.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        output.status.code(),
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout.clone()).unwrap()
+}
+
+/// The shipped training config's `[transport]` table, shrunk: one settled variant, 3 s episodes.
+fn tiny_transport() -> String {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let text = std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
+        .unwrap()
+        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
+        .replace(
+            "recordings = \"data/",
+            &format!("recordings = \"{root}/data/"),
+        )
+        .replace("time_limit_s = 12.0", "time_limit_s = 3.0")
+        .replace("settled_variants = 16", "settled_variants = 1")
+        .replace("settle_s = 0.5", "settle_s = 0.1");
+    assert!(text.contains("time_limit_s = 3.0") && text.contains("settled_variants = 1"));
+    text
+}
+
+/// The tiny optimisation config: 6 candidates x 2 packages, 3 iterations, 3 knots per action.
+const TINY: &str = r#"
+transport = "transport.toml"
+out_dir = "out"
+
+[conditions]
+seed = 3
+packages = 2
+
+[risk]
+quantile = 0.75
+weight = 0.5
+
+[cem]
+population = 6
+elites = 2
+iterations = 3
+smoothing = 0.8
+seed = 5
+
+[knots]
+count = 3
+horizon_s = 2.0
+initial_speed_m_s = 0.3
+speed_std_m_s = 0.3
+tilt_std_deg = 3.0
+"#;
+
+fn setup(dir: &Path, optimize: &str) {
+    std::fs::write(dir.join("transport.toml"), tiny_transport()).unwrap();
+    std::fs::write(dir.join("optimize.toml"), optimize).unwrap();
+}
+
+fn read_dir(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (
+                e.file_name().to_string_lossy().into_owned(),
+                std::fs::read(e.path()).unwrap(),
+            )
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn optimisation_lowers_the_cost_and_writes_the_same_files_on_one_and_two_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path(), TINY);
+    let printed = ok(&rlpkg(
+        &["optimize", "optimize.toml", "--quiet", "--out", "one"],
+        dir.path(),
+        "1",
+    ));
+    ok(&rlpkg(
+        &["optimize", "optimize.toml", "--quiet", "--out", "two"],
+        dir.path(),
+        "2",
+    ));
+    let (one, two) = (
+        read_dir(&dir.path().join("one")),
+        read_dir(&dir.path().join("two")),
+    );
+    let names: Vec<&str> = one.iter().map(|f| f.0.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "commands.csv",
+            "costs.csv",
+            "costs.png",
+            "summary.json",
+            "trajectory.csv"
+        ],
+        "{printed}"
+    );
+    for (a, b) in one.iter().zip(&two) {
+        assert!(a == b, "{} differs between 1 and 2 threads", a.0);
+    }
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("one/summary.json")).unwrap())
+            .unwrap();
+    let (start, best) = (
+        summary["start_cost"].as_f64().unwrap(),
+        summary["best_cost"].as_f64().unwrap(),
+    );
+    assert!(best < start, "{best} against {start} at the start");
+    assert_eq!(summary["iterations"].as_array().unwrap().len(), 3);
+    assert_eq!(summary["best_package_costs"].as_array().unwrap().len(), 2);
+    // The trajectory reads as a robot file: the header, then time increasing from 0.
+    let csv = String::from_utf8(one[4].1.clone()).unwrap();
+    let mut lines = csv.lines();
+    assert!(lines
+        .next()
+        .unwrap()
+        .starts_with("time_s,pos_x,pos_y,pos_z,quat_x"));
+    let times: Vec<f64> = lines
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times[0], 0.0);
+    assert!(times.windows(2).all(|w| w[1] > w[0]) && times.len() > 2);
+}
+
+#[test]
+fn bad_config_keys_exit_2_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    for (from, to, key) in [
+        ("elites = 2", "elites = 7", "cem.elites"),
+        ("packages = 2", "packages = 0", "conditions.packages"),
+        ("count = 3", "count = 1", "knots.count"),
+        ("weight = 0.5", "weight = 1.5", "risk.weight"),
+        (
+            "smoothing = 0.8",
+            "smoothing = 0.8\npopulaton = 3",
+            "populaton",
+        ),
+        ("horizon_s = 2.0", "horizon_s = -2.0", "knots.horizon_s"),
+    ] {
+        setup(dir.path(), &TINY.replace(from, to));
+        let output = rlpkg(&["optimize", "optimize.toml", "--quiet"], dir.path(), "1");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{key}: {stderr}");
+        assert!(stderr.contains(key), "{key}: {stderr}");
+        assert!(!dir.path().join("out").exists(), "{key}: wrote output");
+    }
+}
