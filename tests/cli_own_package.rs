@@ -6,37 +6,15 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use rlpkg_mocap::{Dataset, Split};
 use rlpkg_sim::SceneConfig;
 use serde_json::Value;
 
-const TRAIN_TAKE: &str = "a30_m0.5_high";
-const FAILURE_TAKE: &str = "a45_m1.0_high";
+mod packages_v1;
 
-fn rlpkg(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
-        .args(args)
-        .output()
-        .expect("run rlpkg")
-}
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn package_file(name: &str) -> String {
-    repo()
-        .join("data/packages-v1")
-        .join(name)
-        .to_string_lossy()
-        .into_owned()
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
+use packages_v1::{import, package_file, repo, rlpkg, text, FAILURE_TAKE, TRAIN_TAKE};
 
 fn manifest_value() -> Value {
     serde_json::from_str(&fs::read_to_string(package_file("manifest.json")).unwrap()).unwrap()
@@ -44,28 +22,6 @@ fn manifest_value() -> Value {
 
 fn number(v: &Value) -> f64 {
     v.as_f64().unwrap()
-}
-
-/// Imports the two takes with the manifest's split into `out`.
-fn import(out: &Path, manifest: &str) -> Output {
-    rlpkg(&[
-        "data",
-        "import-motive",
-        &package_file(&format!("{TRAIN_TAKE}.csv.gz")),
-        &package_file(&format!("{FAILURE_TAKE}.csv.gz")),
-        "--robot",
-        &package_file(&format!("{TRAIN_TAKE}_robot.csv")),
-        &package_file(&format!("{FAILURE_TAKE}_robot.csv")),
-        "--manifest",
-        manifest,
-        "--config",
-        repo()
-            .join("configs/import/packages-v1.toml")
-            .to_str()
-            .unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ])
 }
 
 fn from_manifest(manifest: &Path, out: &Path) -> Output {

@@ -3,56 +3,11 @@
 //! with code 2 naming it.
 
 use std::fs;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
 
-const TRAIN_TAKE: &str = "a30_m0.5_high";
-const FAILURE_TAKE: &str = "a45_m1.0_high";
+mod packages_v1;
 
-fn rlpkg(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
-        .args(args)
-        .output()
-        .expect("run rlpkg")
-}
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn package_file(name: &str) -> String {
-    repo()
-        .join("data/packages-v1")
-        .join(name)
-        .to_string_lossy()
-        .into_owned()
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
-
-/// Imports the two takes with the manifest's split into `out`.
-fn import(out: &Path) {
-    let result = rlpkg(&[
-        "data",
-        "import-motive",
-        &package_file(&format!("{TRAIN_TAKE}.csv.gz")),
-        &package_file(&format!("{FAILURE_TAKE}.csv.gz")),
-        "--robot",
-        &package_file(&format!("{TRAIN_TAKE}_robot.csv")),
-        &package_file(&format!("{FAILURE_TAKE}_robot.csv")),
-        "--manifest",
-        &package_file("manifest.json"),
-        "--config",
-        &repo()
-            .join("configs/import/packages-v1.toml")
-            .to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-    ]);
-    assert!(result.status.success(), "{}", text(&result.stderr));
-}
+use packages_v1::{import, package_file, repo, rlpkg, text, FAILURE_TAKE, TRAIN_TAKE};
 
 /// A seal fit config on `dataset` writing to `out`: two vacuum values, the first 0.6 s of each take (the lift starts at 0.3 s).
 fn config(dataset: &Path, out: &Path) -> String {
@@ -71,7 +26,8 @@ fn config(dataset: &Path, out: &Path) -> String {
 fn seal_fit_runs_on_two_takes_and_writes_the_table() {
     let dir = tempfile::tempdir().unwrap();
     let dataset = dir.path().join("dataset");
-    import(&dataset);
+    let imported = import(&dataset, &package_file("manifest.json"));
+    assert!(imported.status.success(), "{}", text(&imported.stderr));
     let out = dir.path().join("seal");
     let path = dir.path().join("seal.toml");
     fs::write(&path, config(&dataset, &out)).unwrap();

@@ -261,12 +261,7 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
     );
     // What the markers show comes first: it needs no simulation.
     for take in &takes {
-        let drift = take
-            .observed
-            .max_held_drift_m
-            .iter()
-            .copied()
-            .fold(0.0, f64::max);
+        let drift = max_held_drift_m(&take.observed);
         let seen = take.observed.detachment.map_or("none".to_string(), |d| {
             format!("cup {} at t = {:.3} s", d.cup, d.t)
         });
@@ -324,12 +319,7 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
     let empty = String::new;
     for (take, replay) in takes.iter().zip(&replays[best]) {
         let seen = take.observed.detachment;
-        let drift = take
-            .observed
-            .max_held_drift_m
-            .iter()
-            .copied()
-            .fold(0.0, f64::max);
+        let drift = max_held_drift_m(&take.observed);
         let failure = replay.failure;
         let error = seen.zip(failure).map(|(s, f)| (f.t - s.t).abs());
         let _ = writeln!(
@@ -439,6 +429,11 @@ fn split_name(split: Split) -> &'static str {
         Split::Test => "test",
         Split::Excluded => "excluded",
     }
+}
+
+/// The largest drift (m) any cup's markers held for the scan's hold time.
+fn max_held_drift_m(scan: &DetachmentScan) -> f64 {
+    scan.max_held_drift_m.iter().copied().fold(0.0, f64::max)
 }
 
 #[cfg(test)]

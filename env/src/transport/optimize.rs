@@ -177,15 +177,15 @@ impl Cem {
         let elites = &order[..self.settings.elites.min(order.len())];
         let w = self.settings.smoothing;
         let count = elites.len() as f64;
-        for i in 0..self.mean.len() {
+        for (i, (mean, std)) in self.mean.iter_mut().zip(&mut self.std).enumerate() {
             let m = elites.iter().map(|&e| candidates[e][i]).sum::<f64>() / count;
             let var = elites
                 .iter()
                 .map(|&e| (candidates[e][i] - m).powi(2))
                 .sum::<f64>()
                 / count;
-            self.mean[i] = w * m + (1.0 - w) * self.mean[i];
-            self.std[i] = w * var.sqrt() + (1.0 - w) * self.std[i];
+            *mean = w * m + (1.0 - w) * *mean;
+            *std = w * var.sqrt() + (1.0 - w) * *std;
         }
         order[0]
     }
