@@ -1,6 +1,7 @@
 //! End-to-end tests of `rlpkg optimize <config.toml>` on a tiny transport scene: the optimised
 //! command costs less than the one it starts from, the output folder is byte-identical whatever
-//! the number of threads, and a bad config exits 2 naming the key.
+//! the number of threads, `rlpkg eval --optimized` plays the command on the same episodes with
+//! the same return, and a bad config or output folder exits 2 naming the key.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -25,7 +26,8 @@ fn ok(output: &Output) -> String {
     String::from_utf8(output.stdout.clone()).unwrap()
 }
 
-/// The shipped training config's `[transport]` table, shrunk: one settled variant, 3 s episodes.
+/// The shipped training config, shrunk: one settled variant, 3 s episodes (what `optimize`
+/// reads), and 2 copies for 2 updates of 8 steps (a run for `eval` to load).
 fn tiny_transport() -> String {
     let root = env!("CARGO_MANIFEST_DIR");
     let text = std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
@@ -37,8 +39,13 @@ fn tiny_transport() -> String {
         )
         .replace("time_limit_s = 12.0", "time_limit_s = 3.0")
         .replace("settled_variants = 16", "settled_variants = 1")
-        .replace("settle_s = 0.5", "settle_s = 0.1");
+        .replace("settle_s = 0.5", "settle_s = 0.1")
+        .replace("num_envs = 16", "num_envs = 2")
+        .replace("total_steps = 819200", "total_steps = 32")
+        .replace("rollout_steps = 64", "rollout_steps = 8")
+        .replace("minibatches = 4", "minibatches = 2");
     assert!(text.contains("time_limit_s = 3.0") && text.contains("settled_variants = 1"));
+    assert!(text.contains("num_envs = 2") && text.contains("total_steps = 32"));
     text
 }
 
@@ -145,6 +152,67 @@ fn optimisation_lowers_the_cost_and_writes_the_same_files_on_one_and_two_threads
         .collect();
     assert_eq!(times[0], 0.0);
     assert!(times.windows(2).all(|w| w[1] > w[0]) && times.len() > 2);
+
+    // The command evaluated on the first episodes of the optimisation's seed: the packages it
+    // was optimised on, so its return is minus its mean cost there.
+    ok(&rlpkg(
+        &["train", "transport.toml", "--quiet"],
+        dir.path(),
+        "2",
+    ));
+    let eval = [
+        "eval",
+        "runs/transport",
+        "--episodes",
+        "2",
+        "--seed",
+        "3",
+        "--scripted",
+        "1.0",
+        "--recorded",
+        "none",
+        "--json",
+        "--optimized",
+    ];
+    let with = |folder: &str| {
+        let mut args = eval.to_vec();
+        args.push(folder);
+        rlpkg(&args, dir.path(), "2")
+    };
+    let report: serde_json::Value = serde_json::from_str(&ok(&with("one"))).unwrap();
+    let row = &report["rows"][2];
+    assert_eq!(row["driver"], "optimized one", "{report}");
+    assert_eq!(row["episodes"], 2);
+    let costs: Vec<f64> = summary["best_package_costs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_f64().unwrap())
+        .collect();
+    let expected = -(costs[0] + costs[1]) / 2.0;
+    let got = row["mean_return"].as_f64().unwrap();
+    assert!(
+        (got - expected).abs() <= 1e-9 * expected.abs().max(1.0),
+        "eval return {got}, optimisation {expected}"
+    );
+    assert_eq!(report["optimized"][0]["packages"], 2);
+
+    // A folder without a summary, or a summary with the wrong number of knots, exits 2.
+    let refused = with("missing");
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("--optimized missing"));
+    let bad = dir.path().join("bad");
+    std::fs::create_dir(&bad).unwrap();
+    let mut broken = summary.clone();
+    broken["best_knots"].as_array_mut().unwrap().pop();
+    std::fs::write(bad.join("summary.json"), broken.to_string()).unwrap();
+    let refused = with("bad");
+    assert_eq!(refused.status.code(), Some(2));
+    let message = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        message.contains("best_knots") && message.contains("9 finite numbers"),
+        "{message}"
+    );
 }
 
 #[test]
