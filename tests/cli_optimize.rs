@@ -4,49 +4,14 @@
 //! the same return, and a bad config or output folder exits 2 naming the key.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
+
+mod common;
+
+use common::{ok, tiny_training};
 
 fn rlpkg(args: &[&str], dir: &Path, threads: &str) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
-        .args(args)
-        .current_dir(dir)
-        .env("RAYON_NUM_THREADS", threads)
-        .output()
-        .expect("rlpkg runs")
-}
-
-fn ok(output: &Output) -> String {
-    assert!(
-        output.status.success(),
-        "exit {:?}\nstdout: {}\nstderr: {}",
-        output.status.code(),
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout.clone()).unwrap()
-}
-
-/// The shipped training config, shrunk: one settled variant, 3 s episodes (what `optimize`
-/// reads), and 2 copies for 2 updates of 8 steps (a run for `eval` to load).
-fn tiny_transport() -> String {
-    let root = env!("CARGO_MANIFEST_DIR");
-    let text = std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
-        .unwrap()
-        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
-        .replace(
-            "recordings = \"data/",
-            &format!("recordings = \"{root}/data/"),
-        )
-        .replace("time_limit_s = 12.0", "time_limit_s = 3.0")
-        .replace("settled_variants = 16", "settled_variants = 1")
-        .replace("settle_s = 0.5", "settle_s = 0.1")
-        .replace("num_envs = 16", "num_envs = 2")
-        .replace("total_steps = 819200", "total_steps = 32")
-        .replace("rollout_steps = 64", "rollout_steps = 8")
-        .replace("minibatches = 4", "minibatches = 2");
-    assert!(text.contains("time_limit_s = 3.0") && text.contains("settled_variants = 1"));
-    assert!(text.contains("num_envs = 2") && text.contains("total_steps = 32"));
-    text
+    common::rlpkg_in(args, dir, Some(threads))
 }
 
 /// The tiny optimisation config: 6 candidates x 2 packages, 3 iterations, 3 knots per action.
@@ -78,7 +43,11 @@ tilt_std_deg = 3.0
 "#;
 
 fn setup(dir: &Path, optimize: &str) {
-    std::fs::write(dir.join("transport.toml"), tiny_transport()).unwrap();
+    std::fs::write(
+        dir.join("transport.toml"),
+        tiny_training("transport.toml", 32, "3.0"),
+    )
+    .unwrap();
     std::fs::write(dir.join("optimize.toml"), optimize).unwrap();
 }
 
