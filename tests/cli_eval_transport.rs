@@ -2,47 +2,20 @@
 //! the exported file of a tiny sensors-only run gives the same table as the run's checkpoint.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
+
+mod common;
+
+use common::ok;
 
 fn rlpkg(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("rlpkg runs")
-}
-
-fn ok(output: &Output) -> String {
-    assert!(
-        output.status.success(),
-        "exit {:?}\nstdout: {}\nstderr: {}",
-        output.status.code(),
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout.clone()).unwrap()
+    common::rlpkg_in(args, dir, None)
 }
 
 /// The shipped training config `name`, shrunk: 2 copies on an 11 x 13 grid, 2 s episodes, 2
 /// updates, one settled variant.
 fn tiny(name: &str) -> String {
-    let root = env!("CARGO_MANIFEST_DIR");
-    let text = std::fs::read_to_string(format!("{root}/configs/train/{name}"))
-        .unwrap()
-        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
-        .replace(
-            "recordings = \"data/",
-            &format!("recordings = \"{root}/data/"),
-        )
-        .replace("num_envs = 16", "num_envs = 2")
-        .replace("total_steps = 819200", "total_steps = 16")
-        .replace("rollout_steps = 64", "rollout_steps = 8")
-        .replace("minibatches = 4", "minibatches = 2")
-        .replace("time_limit_s = 12.0", "time_limit_s = 2.0")
-        .replace("settled_variants = 16", "settled_variants = 1")
-        .replace("settle_s = 0.5", "settle_s = 0.1");
-    assert!(text.contains("total_steps = 16") && text.contains("time_limit_s = 2.0"));
-    text
+    common::tiny_training(name, 16, "2.0")
 }
 
 /// The printed table: every line after the first (which names what was evaluated) up to the

@@ -1,45 +1,17 @@
 //! End-to-end tests of `rlpkg optimize <config.toml>` on a tiny transport scene: the optimised
 //! command costs less than the one it starts from, the output folder is byte-identical whatever
-//! the number of threads, and a bad config exits 2 naming the key.
+//! the number of threads, `rlpkg eval --optimized` plays the command on the same episodes with
+//! the same return, and a bad config or output folder exits 2 naming the key.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
+
+mod common;
+
+use common::{ok, tiny_training};
 
 fn rlpkg(args: &[&str], dir: &Path, threads: &str) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
-        .args(args)
-        .current_dir(dir)
-        .env("RAYON_NUM_THREADS", threads)
-        .output()
-        .expect("rlpkg runs")
-}
-
-fn ok(output: &Output) -> String {
-    assert!(
-        output.status.success(),
-        "exit {:?}\nstdout: {}\nstderr: {}",
-        output.status.code(),
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout.clone()).unwrap()
-}
-
-/// The shipped training config's `[transport]` table, shrunk: one settled variant, 3 s episodes.
-fn tiny_transport() -> String {
-    let root = env!("CARGO_MANIFEST_DIR");
-    let text = std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
-        .unwrap()
-        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
-        .replace(
-            "recordings = \"data/",
-            &format!("recordings = \"{root}/data/"),
-        )
-        .replace("time_limit_s = 12.0", "time_limit_s = 3.0")
-        .replace("settled_variants = 16", "settled_variants = 1")
-        .replace("settle_s = 0.5", "settle_s = 0.1");
-    assert!(text.contains("time_limit_s = 3.0") && text.contains("settled_variants = 1"));
-    text
+    common::rlpkg_in(args, dir, Some(threads))
 }
 
 /// The tiny optimisation config: 6 candidates x 2 packages, 3 iterations, 3 knots per action.
@@ -71,7 +43,11 @@ tilt_std_deg = 3.0
 "#;
 
 fn setup(dir: &Path, optimize: &str) {
-    std::fs::write(dir.join("transport.toml"), tiny_transport()).unwrap();
+    std::fs::write(
+        dir.join("transport.toml"),
+        tiny_training("transport.toml", 32, "3.0"),
+    )
+    .unwrap();
     std::fs::write(dir.join("optimize.toml"), optimize).unwrap();
 }
 
@@ -145,6 +121,67 @@ fn optimisation_lowers_the_cost_and_writes_the_same_files_on_one_and_two_threads
         .collect();
     assert_eq!(times[0], 0.0);
     assert!(times.windows(2).all(|w| w[1] > w[0]) && times.len() > 2);
+
+    // The command evaluated on the first episodes of the optimisation's seed: the packages it
+    // was optimised on, so its return is minus its mean cost there.
+    ok(&rlpkg(
+        &["train", "transport.toml", "--quiet"],
+        dir.path(),
+        "2",
+    ));
+    let eval = [
+        "eval",
+        "runs/transport",
+        "--episodes",
+        "2",
+        "--seed",
+        "3",
+        "--scripted",
+        "1.0",
+        "--recorded",
+        "none",
+        "--json",
+        "--optimized",
+    ];
+    let with = |folder: &str| {
+        let mut args = eval.to_vec();
+        args.push(folder);
+        rlpkg(&args, dir.path(), "2")
+    };
+    let report: serde_json::Value = serde_json::from_str(&ok(&with("one"))).unwrap();
+    let row = &report["rows"][2];
+    assert_eq!(row["driver"], "optimized one", "{report}");
+    assert_eq!(row["episodes"], 2);
+    let costs: Vec<f64> = summary["best_package_costs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_f64().unwrap())
+        .collect();
+    let expected = -(costs[0] + costs[1]) / 2.0;
+    let got = row["mean_return"].as_f64().unwrap();
+    assert!(
+        (got - expected).abs() <= 1e-9 * expected.abs().max(1.0),
+        "eval return {got}, optimisation {expected}"
+    );
+    assert_eq!(report["optimized"][0]["packages"], 2);
+
+    // A folder without a summary, or a summary with the wrong number of knots, exits 2.
+    let refused = with("missing");
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("--optimized missing"));
+    let bad = dir.path().join("bad");
+    std::fs::create_dir(&bad).unwrap();
+    let mut broken = summary.clone();
+    broken["best_knots"].as_array_mut().unwrap().pop();
+    std::fs::write(bad.join("summary.json"), broken.to_string()).unwrap();
+    let refused = with("bad");
+    assert_eq!(refused.status.code(), Some(2));
+    let message = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        message.contains("best_knots") && message.contains("9 finite numbers"),
+        "{message}"
+    );
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! End-to-end tests of `rlpkg train` and `rlpkg eval <run>` on tiny configurations.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 const TINY_CARTPOLE: &str = r#"
 [run]
@@ -43,23 +43,12 @@ clip_reward = 10.0
 epsilon = 1e-8
 "#;
 
-fn rlpkg(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_rlpkg"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("rlpkg runs")
-}
+mod common;
 
-fn ok(output: &Output) -> String {
-    assert!(
-        output.status.success(),
-        "exit {:?}\nstdout: {}\nstderr: {}",
-        output.status.code(),
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout.clone()).unwrap()
+use common::ok;
+
+fn rlpkg(args: &[&str], dir: &Path) -> Output {
+    common::rlpkg_in(args, dir, None)
 }
 
 fn eval_json(dir: &Path, run: &str) -> serde_json::Value {

@@ -1,6 +1,9 @@
-//! Helpers shared by the end-to-end bad-input tables.
+//! Helpers shared by the end-to-end tests. Each test binary compiles this module and uses a
+//! part of it, hence the allowance for unused items.
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 /// A CartPole training config of 4 updates with both normalisers (a run in seconds).
 pub const TINY_CARTPOLE: &str = r#"
@@ -72,4 +75,65 @@ pub fn edit(path: &Path, from: &str, to: &str) {
     let text = std::fs::read_to_string(path).unwrap();
     assert!(text.contains(from), "{} lacks {from}", path.display());
     std::fs::write(path, text.replace(from, to)).unwrap();
+}
+
+/// Runs the binary with `args` in `dir`, with `RAYON_NUM_THREADS=threads` when given.
+pub fn rlpkg_in(args: &[&str], dir: &Path, threads: Option<&str>) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_rlpkg"));
+    command.args(args).current_dir(dir);
+    if let Some(threads) = threads {
+        command.env("RAYON_NUM_THREADS", threads);
+    }
+    command.output().expect("rlpkg runs")
+}
+
+/// Standard output of a run that must succeed (else the test fails showing both streams).
+pub fn ok(output: &Output) -> String {
+    assert!(
+        output.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        output.status.code(),
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout.clone()).unwrap()
+}
+
+/// The shipped training config `configs/train/<name>`, shrunk for a test: paths made absolute,
+/// 2 copies, rollouts of 8 steps in 2 minibatches, `total_steps` steps, episodes of
+/// `time_limit_s`, one settled variant settled for 0.1 s.
+pub fn tiny_training(name: &str, total_steps: u64, time_limit_s: &str) -> String {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let text = std::fs::read_to_string(format!("{root}/configs/train/{name}"))
+        .unwrap()
+        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
+        .replace(
+            "recordings = \"data/",
+            &format!("recordings = \"{root}/data/"),
+        )
+        .replace("num_envs = 16", "num_envs = 2")
+        .replace(
+            "total_steps = 819200",
+            &format!("total_steps = {total_steps}"),
+        )
+        .replace("rollout_steps = 64", "rollout_steps = 8")
+        .replace("minibatches = 4", "minibatches = 2")
+        .replace(
+            "time_limit_s = 12.0",
+            &format!("time_limit_s = {time_limit_s}"),
+        )
+        .replace("settled_variants = 16", "settled_variants = 1")
+        .replace("settle_s = 0.5", "settle_s = 0.1");
+    for expected in [
+        format!("total_steps = {total_steps}"),
+        format!("time_limit_s = {time_limit_s}"),
+        "num_envs = 2".to_string(),
+        "settled_variants = 1".to_string(),
+    ] {
+        assert!(
+            text.contains(&expected),
+            "{name}: no `{expected}` after shrinking"
+        );
+    }
+    text
 }

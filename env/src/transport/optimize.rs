@@ -75,6 +75,22 @@ impl KnotCurve {
     }
 }
 
+impl Transport {
+    /// Every copy's actions now under the open-loop command `knots` of `curve`: the curves'
+    /// values at the time since the copy's episode started (what `rlpkg optimize` rolls out, so
+    /// an optimised command can be evaluated on any episodes).
+    pub fn open_loop_actions(&self, curve: &KnotCurve, knots: &[f64]) -> Vec<f32> {
+        self.episodes
+            .iter()
+            .flat_map(|episode| {
+                curve
+                    .actions(knots, episode.steps as f64 * self.dt)
+                    .map(|a| a as f32)
+            })
+            .collect()
+    }
+}
+
 /// Settings of the cross-entropy method.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CemSettings {

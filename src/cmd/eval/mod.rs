@@ -75,6 +75,15 @@ pub struct EvalArgs {
     /// episode's path evaluated beside the policy, e.g. 0.5,0.75,1 [default: none].
     #[arg(long, value_delimiter = ',', conflicts_with = "params")]
     pub profile: Vec<f64>,
+    /// Transport policies: output folders of `rlpkg optimize` whose best open-loop command is
+    /// evaluated beside the policy, each played from the start of every episode [default: none].
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_name = "DIR",
+        conflicts_with = "params"
+    )]
+    pub optimized: Vec<PathBuf>,
     /// Transport policies: velocity levels of the recorded baselines evaluated beside the policy (the
     /// timing of the low, medium or high-velocity recording of the episode's tilt level, played
     /// along the episode's path); `none` for none.
@@ -94,7 +103,13 @@ pub struct EvalArgs {
 }
 
 /// The options (argument ids) that only an evaluation of the transport task reads.
-pub const TRANSPORT_OPTIONS: [&str; 4] = ["scripted", "profile", "recorded", "trajectories"];
+pub const TRANSPORT_OPTIONS: [&str; 5] = [
+    "scripted",
+    "profile",
+    "optimized",
+    "recorded",
+    "trajectories",
+];
 
 /// Runs `rlpkg eval`.
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {

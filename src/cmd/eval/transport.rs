@@ -2,8 +2,8 @@
 //! the trained policy (the run's checkpoint, or the exported file through tract), the scripted
 //! baseline (the recorded high-velocity path, time-scaled), the profile baseline (the time-optimal,
 //! jerk-limited motion along the episode's path under scaled tool limits, the tilt a smooth blend
-//! over the path) and the recorded
-//! baselines over the same seeded, randomised episodes, side by side.
+//! over the path), the open-loop commands of `rlpkg optimize` runs and the recorded baselines over
+//! the same seeded, randomised episodes, side by side.
 
 use std::path::{Path, PathBuf};
 
@@ -12,8 +12,8 @@ use anyhow::Context;
 use rlpkg_agents::export::OnnxPolicy;
 use rlpkg_agents::TrainedPolicy;
 use rlpkg_env::transport::{
-    load_paths, load_scene, recorded_timings, run_traced_episodes, MotionLimits, OutcomeSummary,
-    PathProfile, TiltSchedule, TracePoint, TransportConfig, TransportPath,
+    load_paths, load_scene, recorded_timings, run_traced_episodes, KnotCurve, MotionLimits,
+    OutcomeSummary, PathProfile, TiltSchedule, TracePoint, TransportConfig, TransportPath,
 };
 use rlpkg_env::Transport;
 use rlpkg_vec_env::{EnvError, VecEnv};
@@ -37,6 +37,9 @@ struct TransportReport {
     /// `--profile`: the motion limits that scale 1 of the profile baseline stands for.
     #[serde(skip_serializing_if = "Option::is_none")]
     profile: Option<ProfileBaseline>,
+    /// `--optimized`: the `rlpkg optimize` results whose commands have rows.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    optimized: Vec<OptimizedCommand>,
     rows: Vec<OutcomeSummary>,
     /// `--trajectories`: the policy and the recording itself on each recording's own conditions.
     trajectories: Vec<OutcomeSummary>,
@@ -59,6 +62,96 @@ struct ProfileBaseline {
     /// [`rlpkg_env::transport::JERK_RAMP_S`].
     base_limits: MotionLimits,
     scales: Vec<f64>,
+}
+
+/// The best open-loop command of an `rlpkg optimize` output folder (its `summary.json`).
+#[derive(Serialize)]
+struct OptimizedCommand {
+    /// The row's driver name: `optimized <folder name>`.
+    driver: String,
+    folder: PathBuf,
+    /// `[conditions]` of the optimisation: the seed of its packages and how many (K).
+    seed: u64,
+    packages: u64,
+    /// Its risk (cost) on its own packages.
+    best_cost: f64,
+    #[serde(skip)]
+    curve: KnotCurve,
+    #[serde(skip)]
+    knots: Vec<f64>,
+}
+
+/// Reads the best command of the `rlpkg optimize` output `folder`; a missing or malformed
+/// `summary.json` is an input error naming the file and key.
+fn load_optimized(folder: &Path) -> anyhow::Result<OptimizedCommand> {
+    let file = folder.join("summary.json");
+    let text = std::fs::read_to_string(&file).map_err(|e| {
+        input_error(format!(
+            "--optimized {}: cannot read {}: {e}; expected an `rlpkg optimize` output folder",
+            folder.display(),
+            file.display()
+        ))
+    })?;
+    let summary: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| input_error(format!("{}: {e}; expected JSON", file.display())))?;
+    let get = |key: &str| summary.pointer(&format!("/{}", key.replace('.', "/")));
+    let bad = |key: &str, expected: &str| {
+        let found = get(key).map_or("missing".into(), |v| v.to_string());
+        input_error(format!(
+            "{}: `{key}` is {found}; expected {expected}",
+            file.display()
+        ))
+    };
+    let count = get("config.knots.count")
+        .and_then(serde_json::Value::as_u64)
+        .filter(|&n| (2..=1000).contains(&n))
+        .ok_or_else(|| bad("config.knots.count", "an integer in [2, 1000]"))?;
+    let horizon_s = get("config.knots.horizon_s")
+        .and_then(serde_json::Value::as_f64)
+        .filter(|h| h.is_finite() && *h > 0.0)
+        .ok_or_else(|| bad("config.knots.horizon_s", "a time > 0 s"))?;
+    let curve = KnotCurve {
+        knots: count as usize,
+        horizon_s,
+    };
+    let knots: Vec<f64> = get("best_knots")
+        .and_then(serde_json::Value::as_array)
+        .map(|values| {
+            values
+                .iter()
+                .filter_map(serde_json::Value::as_f64)
+                .collect::<Vec<_>>()
+        })
+        .filter(|k: &Vec<f64>| k.len() == curve.dimension() && k.iter().all(|v| v.is_finite()))
+        .ok_or_else(|| {
+            bad(
+                "best_knots",
+                &format!(
+                    "{} finite numbers (3 x config.knots.count)",
+                    curve.dimension()
+                ),
+            )
+        })?;
+    let number = |key: &str, expected: &str| {
+        get(key)
+            .and_then(serde_json::Value::as_u64)
+            .ok_or_else(|| bad(key, expected))
+    };
+    let name = folder.file_name().map_or_else(
+        || folder.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    Ok(OptimizedCommand {
+        driver: format!("optimized {name}"),
+        folder: folder.to_path_buf(),
+        seed: number("config.conditions.seed", "an integer >= 0")?,
+        packages: number("config.conditions.packages", "an integer >= 1")?,
+        best_cost: get("best_cost")
+            .and_then(serde_json::Value::as_f64)
+            .ok_or_else(|| bad("best_cost", "a number"))?,
+        curve,
+        knots,
+    })
 }
 
 /// Deterministic actions for `n` rows of observations.
@@ -163,6 +256,11 @@ fn evaluate(
             "--profile {bad}: expected scales of the tool's motion limits in (0, 10]"
         )));
     }
+    let optimized = args
+        .optimized
+        .iter()
+        .map(|folder| load_optimized(folder))
+        .collect::<anyhow::Result<Vec<_>>>()?;
     // A signal stops the episodes at the next control step; the plots, the GIF and summary.json
     // are written whole or not at all.
     let _cooperation = crate::interrupt::Cooperation::start();
@@ -206,6 +304,14 @@ fn evaluate(
             Ok(env.profile_actions(plans.as_deref().unwrap_or_default()))
         })?;
         rows.push(OutcomeSummary::of(&format!("profile x{scale}"), &outcomes));
+    }
+    for command in &optimized {
+        let mut env = make().map_err(input_error)?;
+        let (outcomes, _) = run_traced_episodes::<anyhow::Error>(&mut env, seed, &[], |env, _| {
+            crate::interrupt::check()?;
+            Ok(env.open_loop_actions(&command.curve, &command.knots))
+        })?;
+        rows.push(OutcomeSummary::of(&command.driver, &outcomes));
     }
     let mut baselines = Vec::new();
     for velocity in recorded {
@@ -282,6 +388,7 @@ fn evaluate(
             base_limits,
             scales: args.profile.clone(),
         }),
+        optimized,
         rows,
         trajectories: trajectory_rows,
         plots,
@@ -307,6 +414,16 @@ fn evaluate(
             l.angular_speed_rad_s,
             l.angular_accel_rad_s2,
             l.angular_jerk_rad_s3
+        );
+    }
+    for o in &report.optimized {
+        text += &format!(
+            "{} = the best open-loop command of {} (optimised over {} package(s) of seed {}, risk {:.3}), played from each episode's start\n",
+            o.driver,
+            o.folder.display(),
+            o.packages,
+            o.seed,
+            o.best_cost
         );
     }
     for b in &report.recorded {
