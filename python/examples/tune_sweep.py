@@ -41,7 +41,9 @@ def train_trial(config):
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(command)} failed ({done.returncode}): {done.stderr.strip()}")
     series = scalars(run_root / "run")
-    step, episodic_return = series["charts/episodic_return"][-1]
+    # Every update logs its learning rate; episodic returns only when an episode ended.
+    step = series["charts/learning_rate"][-1][0]
+    episodic_return = series["charts/episodic_return"][-1][1]
     tune.report(
         {
             "episodic_return": episodic_return,

@@ -8,6 +8,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
+mod calibration;
+
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -378,11 +380,63 @@ fn rust_rollout_digest(
     .map_err(value_error)
 }
 
+/// Seconds `steps` lockstep steps of `num_envs` copies of `id` take in Rust alone, after
+/// `reset(seed)` (not timed), every copy given `actions` (one copy's action, repeated): the
+/// reference a Python stepping loop is measured against (`python/benchmarks/step_rate.py`).
+#[pyfunction]
+#[pyo3(signature = (id, num_envs, steps, seed, actions, config=None, autoreset_mode="next_step", num_threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn rust_step_seconds(
+    py: Python<'_>,
+    id: &str,
+    num_envs: usize,
+    steps: usize,
+    seed: u64,
+    actions: Vec<f32>,
+    config: Option<PathBuf>,
+    autoreset_mode: &str,
+    num_threads: Option<usize>,
+) -> PyResult<f64> {
+    let mode = self::autoreset_mode(autoreset_mode)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(pool_size(num_threads)?)
+        .build()
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    py.detach(|| {
+        pool.install(|| {
+            let mut env = build(id, num_envs, config.as_deref()).map_err(value_error)?;
+            env.set_autoreset_mode(mode).map_err(value_error)?;
+            let dim = env.spec().action.dim();
+            if actions.len() != dim {
+                return Err(value_error(format!(
+                    "actions: {} values; expected one copy's action ({dim} values)",
+                    actions.len()
+                )));
+            }
+            let batch: Vec<f32> = actions
+                .iter()
+                .copied()
+                .cycle()
+                .take(dim * num_envs)
+                .collect();
+            let mut out = env.buffers();
+            env.reset(seed, &mut out).map_err(value_error)?;
+            let start = std::time::Instant::now();
+            for _ in 0..steps {
+                env.step(&batch, &mut out).map_err(value_error)?;
+            }
+            Ok(start.elapsed().as_secs_f64())
+        })
+    })
+}
+
 /// The native module.
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<VecEnvCore>()?;
+    m.add_class::<calibration::CalibrationObjective>()?;
     m.add_function(wrap_pyfunction!(rust_rollout_digest, m)?)?;
+    m.add_function(wrap_pyfunction!(rust_step_seconds, m)?)?;
     m.add("IDS", IDS.to_vec())?;
     // Where the package was built from: the repository whose configs/ the defaults name.
     m.add("REPOSITORY", concat!(env!("CARGO_MANIFEST_DIR"), "/.."))?;

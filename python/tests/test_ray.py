@@ -1,6 +1,7 @@
 """Ray on a two-node cluster started on this machine (ray.cluster_utils.Cluster, one CPU and
-one custom resource per node): RLlib PPO with env runners on both nodes, and a Tune sweep of
-``rlpkg train`` runs whose trials land on both nodes."""
+one custom resource per node): RLlib PPO with env runners on both nodes, a Tune sweep of
+``rlpkg train`` runs whose trials land on both nodes, and Tune with Optuna's GP sampler over the
+calibration objective."""
 
 import math
 import os

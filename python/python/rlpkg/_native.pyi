@@ -49,3 +49,34 @@ def rust_rollout_digest(
     autoreset_mode: str = "same_step",
     num_threads: int | None = None,
 ) -> int: ...
+
+def rust_step_seconds(
+    id: str,
+    num_envs: int,
+    steps: int,
+    seed: int,
+    actions: list[float],
+    config: str | PathLike[str] | None = None,
+    autoreset_mode: str = "next_step",
+    num_threads: int | None = None,
+) -> float: ...
+
+class CalibrationObjective:
+    """The objective of ``rlpkg calibrate`` for a calibration configuration."""
+
+    def __init__(
+        self,
+        config: str | PathLike[str],
+        trajectories: list[str] | None = None,
+        max_seconds: float | None = None,
+    ) -> None: ...
+    @property
+    def names(self) -> list[str]: ...
+    @property
+    def bounds(self) -> list[tuple[float, float]]: ...
+    @property
+    def log_scale(self) -> list[bool]: ...
+    @property
+    def trajectories(self) -> list[str]: ...
+    def base_values(self) -> list[float]: ...
+    def evaluate(self, batch: list[list[float]]) -> list[dict[str, float]]: ...
