@@ -97,7 +97,7 @@ def main():
         result = algo.train()
         runners = result["env_runners"]
         print(
-            f"iteration {i + 1}: {runners['num_env_steps_sampled_lifetime']} steps, "
+            f"iteration {i + 1}: {int(runners['num_env_steps_sampled_lifetime'])} steps, "
             f"episode return mean {runners.get('episode_return_mean', float('nan')):.2f}, "
             f"episode length mean {runners.get('episode_len_mean', float('nan')):.1f}"
         )

@@ -114,7 +114,7 @@ def main():
     for r in results:
         params = ", ".join(f"{k} {v:.4g}" for k, v in r.config["params"].items())
         print(f"{params}: loss {r.metrics['loss']:.6g}")
-    best = results.get_best_result()
+    best = results.get_best_result(metric="objective", mode="min")
     print("best:", best.config["params"], "loss", best.metrics["loss"])
     ray.shutdown()
 

@@ -355,6 +355,7 @@ impl VecEnvCore {
 /// own stepping with.
 #[pyfunction]
 #[pyo3(signature = (id, num_envs, steps, seed, config=None, autoreset_mode="same_step", num_threads=None))]
+#[allow(clippy::too_many_arguments)] // Python's keyword arguments
 fn rust_rollout_digest(
     py: Python<'_>,
     id: &str,
