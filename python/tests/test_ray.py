@@ -9,9 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-
-ray = pytest.importorskip("ray")
-pytest.importorskip("ray.rllib")
+import ray
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 REPOSITORY = Path(__file__).resolve().parents[2]

@@ -5,10 +5,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 import torch
 
-pytest.importorskip("stable_baselines3")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
 import sb3_ppo  # noqa: E402
 
