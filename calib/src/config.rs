@@ -9,7 +9,9 @@ use serde::Deserialize;
 
 use crate::bo::{Acquisition, BoSettings};
 use crate::space::{ParamSpace, ParamSpec};
+use rlpkg_mocap::{Dataset, Split};
 use rlpkg_replay::loss::LossWeights;
+use rlpkg_sim::SceneConfig;
 
 /// Simulator parameter names that can be calibrated (defined beside the replay set-up).
 pub use rlpkg_replay::PARAMETER_NAMES;
@@ -254,6 +256,36 @@ impl CalibrateConfig {
     /// The search space of the `[[param]]` tables (validated by [`CalibrateConfig::load`]).
     pub fn space(&self) -> ParamSpace {
         ParamSpace::new(self.params.clone()).expect("validated when loaded")
+    }
+
+    /// The scene this config calibrates: its preset with the grid, step and disc-holding
+    /// overrides. `source` (the config file) is named in an error.
+    pub fn scene(&self, source: &Path) -> Result<SceneConfig, String> {
+        let mut scene = rlpkg_replay::load_scene(&self.sim.preset, Some(self.sim.between), self.sim.dt)
+            .map_err(|e| format!("{e} (sim.preset of {})", source.display()))?;
+        if let Some(hold) = self.sim.hold_disc {
+            scene.disc.hold_at_recorded_start = hold;
+        }
+        if let Some(hold) = self.sim.hold_orientation {
+            scene.disc.hold_orientation = hold;
+        }
+        Ok(scene)
+    }
+
+    /// The ids of the trajectories to fit: the config's `trajectories`, else the dataset's train
+    /// split; an error when that leaves none.
+    pub fn trajectory_ids(&self, dataset: &Dataset) -> Result<Vec<String>, String> {
+        let ids = match &self.trajectories {
+            Some(ids) => ids.clone(),
+            None => dataset.ids(Some(Split::Train)),
+        };
+        if ids.is_empty() {
+            return Err(format!(
+                "{}: no trajectory to fit (the manifest has no train split)",
+                self.data.display()
+            ));
+        }
+        Ok(ids)
     }
 
     /// The optimiser settings for [`crate::bo::BayesOpt`].

@@ -54,7 +54,6 @@ impl CalibrationObjective {
             }
         }
         py.detach(|| {
-            // The set-up of `rlpkg calibrate` (src/cmd/calibrate.rs `run` and `apply_overrides`).
             let mut cfg = CalibrateConfig::load(&config).map_err(value_error)?;
             if let Some(ids) = trajectories.filter(|ids| !ids.is_empty()) {
                 cfg.trajectories = Some(ids);
@@ -63,28 +62,12 @@ impl CalibrationObjective {
                 cfg.sim.max_seconds = max_seconds;
             }
             let dataset = Dataset::open(&cfg.data).map_err(value_error)?;
-            let ids = match &cfg.trajectories {
-                Some(ids) => ids.clone(),
-                None => dataset.ids(Some(Split::Train)),
-            };
-            if ids.is_empty() {
-                return Err(value_error(format!(
-                    "{}: no trajectory to fit (the manifest has no train split)",
-                    cfg.data.display()
-                )));
-            }
+            let ids = cfg.trajectory_ids(&dataset).map_err(value_error)?;
             let recorded = ids
                 .iter()
                 .map(|id| dataset.load(id).map_err(value_error))
                 .collect::<PyResult<Vec<_>>>()?;
-            let mut scene = load_scene(&cfg.sim.preset, Some(cfg.sim.between), cfg.sim.dt)
-                .map_err(|e| value_error(format!("{e} (sim.preset of {})", config.display())))?;
-            if let Some(hold) = cfg.sim.hold_disc {
-                scene.disc.hold_at_recorded_start = hold;
-            }
-            if let Some(hold) = cfg.sim.hold_orientation {
-                scene.disc.hold_orientation = hold;
-            }
+            let scene = cfg.scene(&config).map_err(value_error)?;
             let names: Vec<String> = cfg.params.iter().map(|p| p.name.clone()).collect();
             let objective = SimObjective::new(
                 &scene,

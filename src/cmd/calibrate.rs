@@ -63,28 +63,12 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         )));
     }
     let dataset = Dataset::open(&config.data).map_err(input_error)?;
-    let ids = match &config.trajectories {
-        Some(ids) => ids.clone(),
-        None => dataset.ids(Some(Split::Train)),
-    };
-    if ids.is_empty() {
-        return Err(input_error(format!(
-            "{}: no trajectory to fit (the manifest has no train split)",
-            config.data.display()
-        )));
-    }
+    let ids = config.trajectory_ids(&dataset).map_err(input_error)?;
     let trajectories = ids
         .iter()
         .map(|id| dataset.load(id).map_err(input_error))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut scene = load_scene(&config.sim.preset, Some(config.sim.between), config.sim.dt)
-        .map_err(|e| input_error(format!("{} (sim.preset of {})", e, args.config.display())))?;
-    if let Some(hold) = config.sim.hold_disc {
-        scene.disc.hold_at_recorded_start = hold;
-    }
-    if let Some(hold) = config.sim.hold_orientation {
-        scene.disc.hold_orientation = hold;
-    }
+    let scene = config.scene(&args.config).map_err(input_error)?;
     check_bounds_in_scene(&config, &scene, &args.config)?;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let space = config.space();

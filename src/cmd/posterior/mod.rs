@@ -92,20 +92,6 @@ struct SummaryFile<'a> {
     summary: &'a PosteriorSummary,
 }
 
-/// The scene a calibration config calibrates: its preset with the grid, step and disc-holding
-/// overrides, as `rlpkg calibrate` builds it.
-pub fn calibration_scene(config: &CalibrateConfig, path: &Path) -> anyhow::Result<SceneConfig> {
-    let mut scene = load_scene(&config.sim.preset, Some(config.sim.between), config.sim.dt)
-        .map_err(|e| input_error(format!("{} (sim.preset of {})", e, path.display())))?;
-    if let Some(hold) = config.sim.hold_disc {
-        scene.disc.hold_at_recorded_start = hold;
-    }
-    if let Some(hold) = config.sim.hold_orientation {
-        scene.disc.hold_orientation = hold;
-    }
-    Ok(scene)
-}
-
 /// The files `rlpkg posterior` writes into its output folder.
 const OUTPUT_FILES: [&str; 3] = ["samples.csv", "summary.json", "profiles.csv"];
 

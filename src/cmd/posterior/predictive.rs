@@ -16,7 +16,6 @@ use rlpkg_replay::{rollout, set_param, Candidate, Observer, Target};
 use rlpkg_sim::Model;
 use serde::Serialize;
 
-use super::calibration_scene;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 
@@ -132,7 +131,7 @@ pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
     let rows: Vec<usize> = (0..args.draws)
         .map(|i| i * samples.len() / args.draws)
         .collect();
-    let scene = calibration_scene(&config, &config_path)?;
+    let scene = config.scene(&config_path).map_err(input_error)?;
     let base = Candidate::of_scene(&scene);
     let candidates = rows
         .iter()

@@ -17,7 +17,7 @@ use rlpkg_replay::synthetic::marker_noise_std;
 use rlpkg_replay::Target;
 use serde::Serialize;
 
-use super::{calibration_scene, PosteriorArgs};
+use super::PosteriorArgs;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 
@@ -63,7 +63,7 @@ pub fn run(
             config.data.display()
         )));
     }
-    let scene = calibration_scene(&config, &args.config)?;
+    let scene = config.scene(&args.config).map_err(input_error)?;
     let targets = ids
         .iter()
         .map(|id| {
