@@ -50,12 +50,14 @@ fn seal_fit_runs_on_two_takes_and_writes_the_table() {
     let candidates = fs::read_to_string(out.join("candidates.csv")).unwrap();
     let rows: Vec<&str> = candidates.lines().collect();
     assert_eq!(rows.len(), 3, "header and two capacities: {candidates}");
-    assert!(rows[0].starts_with("vacuum_kpa,lip_strength_ratio,agreement"));
+    assert!(rows[0].starts_with("vacuum_kpa,lip_strength_ratio,balanced_agreement,agreement"));
     // 0.05 kPa holds 0.06 N per cup: the package cannot be lifted, a cup fails on both takes.
     let weak: Vec<&str> = rows[1].split(',').collect();
     assert_eq!(weak[0], "0.05");
-    assert_eq!(weak[2], "1", "agrees on the failure take only: {}", rows[1]);
-    assert_eq!(weak[3..7], ["1", "0", "1", "0"]);
+    assert_eq!(weak[3], "1", "agrees on the failure take only: {}", rows[1]);
+    // Every flagged take failed, no unflagged one held: (1 + 0) / 2.
+    assert_eq!(weak[2], "0.5000", "{}", rows[1]);
+    assert_eq!(weak[4..8], ["1", "0", "1", "0"]);
 
     let takes = fs::read_to_string(out.join("takes.csv")).unwrap();
     assert_eq!(takes.lines().count(), 3, "{takes}");

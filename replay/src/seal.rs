@@ -143,7 +143,8 @@ fn replay_one_capacity(
     Ok(out)
 }
 
-/// The 2 x 2 table of recorded failure flags against simulated cup failures.
+/// The 2 x 2 table of recorded failure flags against simulated cup failures, and the replays
+/// of each class that diverged (counted as disagreeing, in neither cell).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Confusion {
     /// Flagged, and a cup failed in the simulator.
@@ -154,14 +155,42 @@ pub struct Confusion {
     pub unflagged_failed: usize,
     /// Not flagged, no cup failed.
     pub unflagged_held: usize,
-    /// Replays that diverged (counted as disagreeing, in neither cell).
-    pub diverged: usize,
+    /// Flagged, the replay diverged.
+    pub flagged_diverged: usize,
+    /// Not flagged, the replay diverged.
+    pub unflagged_diverged: usize,
 }
 
 impl Confusion {
     /// Recordings whose flag the simulator reproduced.
     pub fn agreement(&self) -> usize {
         self.flagged_failed + self.unflagged_held
+    }
+
+    /// Replays that diverged.
+    pub fn diverged(&self) -> usize {
+        self.flagged_diverged + self.unflagged_diverged
+    }
+
+    /// The mean over the two classes of the share of recordings whose flag the simulator
+    /// reproduced: flagged ones that failed and unflagged ones that held (a class without
+    /// recordings is left out; 0 with none at all). When failures are rare, raw agreement
+    /// rewards a seal that never fails; this scores never failing, like always failing, 0.5.
+    pub fn balanced_agreement(&self) -> f64 {
+        let flagged = self.flagged_failed + self.flagged_held + self.flagged_diverged;
+        let unflagged = self.unflagged_failed + self.unflagged_held + self.unflagged_diverged;
+        let rates: Vec<f64> = [
+            (self.flagged_failed, flagged),
+            (self.unflagged_held, unflagged),
+        ]
+        .into_iter()
+        .filter(|&(_, total)| total > 0)
+        .map(|(hit, total)| hit as f64 / total as f64)
+        .collect();
+        match rates.len() {
+            0 => 0.0,
+            n => rates.iter().sum::<f64>() / n as f64,
+        }
     }
 }
 
@@ -182,7 +211,10 @@ pub fn score(flags: &[bool], observed: &[Option<f64>], replays: &[SealReplay]) -
     let mut errors = Vec::new();
     for ((&flag, seen), replay) in flags.iter().zip(observed).zip(replays) {
         if replay.diverged.is_some() {
-            confusion.diverged += 1;
+            match flag {
+                true => confusion.flagged_diverged += 1,
+                false => confusion.unflagged_diverged += 1,
+            }
             continue;
         }
         let failed = replay.failure.is_some();
@@ -204,8 +236,8 @@ pub fn score(flags: &[bool], observed: &[Option<f64>], replays: &[SealReplay]) -
     }
 }
 
-/// Per candidate: the distance (grid steps, largest over the axes) to the nearest candidate that
-/// agrees with fewer recordings; infinite when none does. `grid[i]` is candidate `i`'s index along
+/// Per candidate: the distance (grid steps, largest over the axes) to the nearest candidate with
+/// a lower balanced agreement; infinite when none has. `grid[i]` is candidate `i`'s index along
 /// each searched axis.
 pub fn margins(grid: &[[usize; 2]], scores: &[CapacityScore]) -> Vec<f64> {
     grid.iter()
@@ -213,15 +245,18 @@ pub fn margins(grid: &[[usize; 2]], scores: &[CapacityScore]) -> Vec<f64> {
         .map(|(a, sa)| {
             grid.iter()
                 .zip(scores)
-                .filter(|(_, sb)| sb.confusion.agreement() < sa.confusion.agreement())
+                .filter(|(_, sb)| {
+                    sb.confusion.balanced_agreement() < sa.confusion.balanced_agreement()
+                })
                 .map(|(b, _)| a[0].abs_diff(b[0]).max(a[1].abs_diff(b[1])) as f64)
                 .fold(f64::INFINITY, f64::min)
         })
         .collect()
 }
 
-/// The best candidate: most recordings agreeing; ties to the smaller timing error (a candidate
-/// with one before one without); then to the largest margin; then to the first.
+/// The best candidate: the highest balanced agreement ([`Confusion::balanced_agreement`]); ties
+/// to the smaller timing error (a candidate with one before one without); then to the largest
+/// margin; then to the first.
 pub fn pick(grid: &[[usize; 2]], scores: &[CapacityScore]) -> Option<usize> {
     let margins = margins(grid, scores);
     (0..scores.len()).min_by(|&a, &b| {
@@ -233,8 +268,8 @@ pub fn pick(grid: &[[usize; 2]], scores: &[CapacityScore]) -> Option<usize> {
             (None, None) => std::cmp::Ordering::Equal,
         };
         sb.confusion
-            .agreement()
-            .cmp(&sa.confusion.agreement())
+            .balanced_agreement()
+            .total_cmp(&sa.confusion.balanced_agreement())
             .then(timing)
             .then(margins[b].total_cmp(&margins[a]))
             .then(a.cmp(&b))
@@ -275,23 +310,59 @@ mod tests {
                 flagged_held: 1,
                 unflagged_failed: 2,
                 unflagged_held: 1,
-                diverged: 0,
+                flagged_diverged: 0,
+                unflagged_diverged: 0,
             }
         );
         assert_eq!(s.confusion.agreement(), 2);
+        // Half the flagged failures and a third of the unflagged holds.
+        assert!((s.confusion.balanced_agreement() - (0.5 + 1.0 / 3.0) / 2.0).abs() < 1e-12);
         // |2.5 - 2.0| and |0.5 - 1.0|.
         assert_eq!(s.timing_error_s, Some(0.5));
         assert_eq!(score(&flags, &[None; 5], &replays).timing_error_s, None);
     }
 
+    /// A score on 5 unflagged recordings, `agreement` of them held.
     fn scored(agreement: usize, timing: Option<f64>) -> CapacityScore {
         CapacityScore {
             confusion: Confusion {
                 unflagged_held: agreement,
+                unflagged_failed: 5 - agreement,
                 ..Confusion::default()
             },
             timing_error_s: timing,
         }
+    }
+
+    #[test]
+    fn balanced_agreement_prefers_catching_rare_failures_to_never_failing() {
+        // 5 flagged and 22 unflagged recordings: a seal that never fails agrees with 22, one
+        // that fails 4 of the 5 flagged and 6 of the unflagged with 20.
+        let never = CapacityScore {
+            confusion: Confusion {
+                flagged_held: 5,
+                unflagged_held: 22,
+                ..Confusion::default()
+            },
+            timing_error_s: None,
+        };
+        let catching = CapacityScore {
+            confusion: Confusion {
+                flagged_failed: 4,
+                flagged_held: 1,
+                unflagged_failed: 6,
+                unflagged_held: 16,
+                ..Confusion::default()
+            },
+            timing_error_s: Some(0.3),
+        };
+        assert!(never.confusion.agreement() > catching.confusion.agreement());
+        assert_eq!(never.confusion.balanced_agreement(), 0.5);
+        let expected = (4.0 / 5.0 + 16.0 / 22.0) / 2.0;
+        assert!((catching.confusion.balanced_agreement() - expected).abs() < 1e-12);
+        let line = [[0, 0], [1, 0]];
+        assert_eq!(pick(&line, &[never, catching]), Some(1));
+        assert_eq!(Confusion::default().balanced_agreement(), 0.0);
     }
 
     #[test]
@@ -380,8 +451,10 @@ mod tests {
             time: 1.0,
         });
         let s = score(&[true], &[Some(1.0)], &[diverged]);
-        assert_eq!(s.confusion.diverged, 1);
+        assert_eq!(s.confusion.flagged_diverged, 1);
+        assert_eq!(s.confusion.diverged(), 1);
         assert_eq!(s.confusion.agreement(), 0);
+        assert_eq!(s.confusion.balanced_agreement(), 0.0);
         assert_eq!(s.timing_error_s, None);
     }
 }

@@ -1,12 +1,13 @@
 //! `rlpkg seal fit CONFIG`: fits the suction seal's capacity (`[seal]` `vacuum_kpa`,
 //! `lip_strength_ratio`) to a dataset's failure flags. Every take (train, test and excluded) is
 //! replayed with the scene under each capacity of a grid (`rlpkg_replay::seal`); the capacity whose
-//! simulated cup failures agree with the most flags wins, ties going to the smaller error against
-//! the detachment observed in the markers (`rlpkg_mocap::detach`), then to the largest margin.
+//! simulated cup failures agree best with the flags, class by class (balanced agreement: failures
+//! are rare), wins, ties going to the smaller error against the detachment observed in the markers
+//! (`rlpkg_mocap::detach`), then to the largest margin.
 //!
-//! Files under the config's `out`: `candidates.csv` (every capacity: confusion cells, timing
-//! error, margin), `takes.csv` (per take under the fitted capacity: flag, observed detachment,
-//! simulated failure, timing error), `fit.toml` (fitted values, confusion table, timing error) and
+//! Files under the config's `out`: `candidates.csv` (every capacity: balanced and raw agreement,
+//! confusion cells, timing error, margin), `takes.csv` (per take under the fitted capacity: flag,
+//! observed detachment, simulated failure, timing error), `fit.toml` (fitted values, confusion table, timing error) and
 //! `scene.toml` (the scene with the fitted `[seal]`; also written to `--write-params`).
 
 use std::fmt::Write as _;
@@ -293,21 +294,22 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
         ))
     })?;
     let mut candidates_csv = String::from(
-        "vacuum_kpa,lip_strength_ratio,agreement,flagged_failed,flagged_held,unflagged_failed,unflagged_held,diverged,timing_error_s,margin_steps\n",
+        "vacuum_kpa,lip_strength_ratio,balanced_agreement,agreement,flagged_failed,flagged_held,unflagged_failed,unflagged_held,diverged,timing_error_s,margin_steps\n",
     );
     for ((capacity, s), margin) in capacities.iter().zip(&scores).zip(&margins) {
         let c = &s.confusion;
         let _ = writeln!(
             candidates_csv,
-            "{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{:.4},{},{},{},{},{},{},{},{}",
             capacity.vacuum_kpa,
             capacity.lip_strength_ratio,
+            c.balanced_agreement(),
             c.agreement(),
             c.flagged_failed,
             c.flagged_held,
             c.unflagged_failed,
             c.unflagged_held,
-            c.diverged,
+            c.diverged(),
             s.timing_error_s
                 .map_or(String::new(), |e| format!("{e:.4}")),
             margin
@@ -351,7 +353,7 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
     );
     let fit_toml = format!(
         "# Seal capacity fitted by `rlpkg seal fit {}` on {} takes ({} capacities, {:.1} s wall).\n\
-         vacuum_kpa = {:?}\nlip_strength_ratio = {:?}\nagreement = {}\ntakes = {}\n\
+         vacuum_kpa = {:?}\nlip_strength_ratio = {:?}\nbalanced_agreement = {:.4}\nagreement = {}\ntakes = {}\n\
          timing_error_s = {}\nmargin_steps = {}\ndiverged = {}\n\n[confusion]\n\
          flagged_failed = {}\nflagged_held = {}\nunflagged_failed = {}\nunflagged_held = {}\n",
         args.config.display(),
@@ -360,6 +362,7 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
         wall_s,
         fitted.vacuum_kpa,
         fitted.lip_strength_ratio,
+        c.balanced_agreement(),
         c.agreement(),
         takes.len(),
         s.timing_error_s
@@ -369,7 +372,7 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
         } else {
             "inf".to_string()
         },
-        c.diverged,
+        c.diverged(),
         c.flagged_failed,
         c.flagged_held,
         c.unflagged_failed,
@@ -379,13 +382,14 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
     fitted.apply_to(&mut fitted_scene);
     let scene_text = format!(
         "# {} with the seal capacity fitted by `rlpkg seal fit {}`: vacuum_kpa = {}, lip_strength_ratio = {}\n\
-         # ({} of {} takes agree with their failure flags). Use with `rlpkg simulate --params <this file>`.\n\n{}",
+         # ({} of {} takes agree with their failure flags, balanced agreement {:.3}). Use with `rlpkg simulate --params <this file>`.\n\n{}",
         config.scene.display(),
         args.config.display(),
         fitted.vacuum_kpa,
         fitted.lip_strength_ratio,
         c.agreement(),
         takes.len(),
+        c.balanced_agreement(),
         toml::to_string_pretty(&fitted_scene)?
     );
     for (name, text) in [
@@ -403,14 +407,15 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
     println!("{takes_csv}");
     println!("{table}");
     println!(
-        "fitted vacuum_kpa = {}, lip_strength_ratio = {}: {} of {} takes agree, timing error {}, {} diverged ({:.1} s wall)",
+        "fitted vacuum_kpa = {}, lip_strength_ratio = {}: balanced agreement {:.3}, {} of {} takes agree, timing error {}, {} diverged ({:.1} s wall)",
         fitted.vacuum_kpa,
         fitted.lip_strength_ratio,
+        c.balanced_agreement(),
         c.agreement(),
         takes.len(),
         s.timing_error_s
             .map_or("n/a".to_string(), |e| format!("{e:.3} s")),
-        c.diverged,
+        c.diverged(),
         wall_s
     );
     println!(
