@@ -261,8 +261,9 @@ impl CalibrateConfig {
     /// The scene this config calibrates: its preset with the grid, step and disc-holding
     /// overrides. `source` (the config file) is named in an error.
     pub fn scene(&self, source: &Path) -> Result<SceneConfig, String> {
-        let mut scene = rlpkg_replay::load_scene(&self.sim.preset, Some(self.sim.between), self.sim.dt)
-            .map_err(|e| format!("{e} (sim.preset of {})", source.display()))?;
+        let mut scene =
+            rlpkg_replay::load_scene(&self.sim.preset, Some(self.sim.between), self.sim.dt)
+                .map_err(|e| format!("{e} (sim.preset of {})", source.display()))?;
         if let Some(hold) = self.sim.hold_disc {
             scene.disc.hold_at_recorded_start = hold;
         }

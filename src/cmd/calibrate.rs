@@ -16,8 +16,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{self, CalibratedParams, Plan};
 use rlpkg_calib::fingerprint::{self, ObjectiveRecord};
-use rlpkg_calib::objective::{load_scene, Observer, SimObjective};
-use rlpkg_mocap::{Dataset, Split};
+use rlpkg_calib::objective::{Observer, SimObjective};
+use rlpkg_mocap::Dataset;
 use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
 

@@ -17,11 +17,9 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use rlpkg_calib::config::CalibrateConfig;
-use rlpkg_calib::objective::load_scene;
 use rlpkg_calib::posterior::{
     self, Posterior, PosteriorError, PosteriorSettings, PosteriorSummary, Threshold,
 };
-use rlpkg_sim::SceneConfig;
 use serde::Serialize;
 
 use crate::error::{input_error, output_error};
