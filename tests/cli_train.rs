@@ -260,22 +260,7 @@ fn set_overrides_are_stored_in_the_run_and_bad_ones_exit_with_code_2() {
 #[test]
 fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     // The shipped transport config, shrunk: 2 copies on an 11 x 13 grid, 2 s episodes, 2 updates.
-    let root = env!("CARGO_MANIFEST_DIR");
-    let text = std::fs::read_to_string(format!("{root}/configs/train/transport.toml"))
-        .unwrap()
-        .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
-        .replace(
-            "recordings = \"data/",
-            &format!("recordings = \"{root}/data/"),
-        )
-        .replace("num_envs = 16", "num_envs = 2")
-        .replace("total_steps = 819200", "total_steps = 16")
-        .replace("rollout_steps = 64", "rollout_steps = 8")
-        .replace("minibatches = 4", "minibatches = 2")
-        .replace("time_limit_s = 12.0", "time_limit_s = 2.0")
-        .replace("settled_variants = 16", "settled_variants = 1")
-        .replace("settle_s = 0.5", "settle_s = 0.1");
-    assert!(text.contains("total_steps = 16") && text.contains("time_limit_s = 2.0"));
+    let text = common::tiny_training("transport.toml", 16, "2.0");
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("transport.toml"), text).unwrap();
     ok(&rlpkg(

@@ -47,6 +47,14 @@ fn pool_size(num_threads: Option<usize>) -> PyResult<usize> {
     Ok(std::thread::available_parallelism().map_or(1, |n| n.get()))
 }
 
+/// An environment's own rayon pool of [`pool_size`] threads.
+fn thread_pool(num_threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(pool_size(num_threads)?)
+        .build()
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
 /// A relative path of the `[transport]` table (`scene`, `recordings`) as found from the working
 /// folder, else from the configuration file's folder or one of its parents (a configuration in
 /// the repository's `configs/train/` names paths relative to the repository).
@@ -195,10 +203,7 @@ impl VecEnvCore {
         num_threads: Option<usize>,
     ) -> PyResult<Self> {
         let mode = self::autoreset_mode(autoreset_mode)?;
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(pool_size(num_threads)?)
-            .build()
-            .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        let pool = thread_pool(num_threads)?;
         let id = id.to_string();
         let mut env = py
             .detach(|| pool.install(|| build(&id, num_envs, config.as_deref())))
@@ -367,10 +372,7 @@ fn rust_rollout_digest(
     num_threads: Option<usize>,
 ) -> PyResult<u64> {
     let mode = self::autoreset_mode(autoreset_mode)?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(pool_size(num_threads)?)
-        .build()
-        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    let pool = thread_pool(num_threads)?;
     py.detach(|| {
         pool.install(|| {
             let mut env = build(id, num_envs, config.as_deref())?;
@@ -399,10 +401,7 @@ fn rust_step_seconds(
     num_threads: Option<usize>,
 ) -> PyResult<f64> {
     let mode = self::autoreset_mode(autoreset_mode)?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(pool_size(num_threads)?)
-        .build()
-        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    let pool = thread_pool(num_threads)?;
     py.detach(|| {
         pool.install(|| {
             let mut env = build(id, num_envs, config.as_deref()).map_err(value_error)?;

@@ -432,7 +432,7 @@ mod tests {
     }
 
     fn pair_actions(step: usize) -> [f32; 6] {
-        let tilt = if step % 2 == 0 { 0.35 } else { -0.35 };
+        let tilt = if step.is_multiple_of(2) { 0.35 } else { -0.35 };
         [0.945, tilt, -tilt, 0.0, 0.0, 0.0]
     }
 
