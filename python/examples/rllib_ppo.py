@@ -50,6 +50,7 @@ def ppo_config(
     epochs: int = 6,
     lr: float = 3e-4,
     seed: int = 0,
+    sample_timeout_s: float = 900.0,
 ) -> PPOConfig:
     """PPO on ``env_id`` with ``env_runners`` remote env runners of 1 CPU each."""
     env_config = {"id": env_id}
@@ -64,6 +65,9 @@ def ppo_config(
             gym_env_vectorize_mode="vector_entry_point",
             num_cpus_per_env_runner=1,
             rollout_fragment_length=rollout_fragment_length,
+            # A Transport-v0 runner settles its packages at its first reset (seconds per copy on
+            # a loaded machine): RLlib's 60 s default would return an empty sample.
+            sample_timeout_s=sample_timeout_s,
         )
         .learners(num_learners=0)
         .training(
