@@ -502,15 +502,7 @@ mod tests {
         // Copy 0 is driven over-fast on a weak seal and fails; copy 1 is held still. With finished
         // copies retired, copy 0 keeps its final observation and earns nothing from then on, and
         // copy 1 runs exactly as it does when finished copies restart.
-        let text = test_table()
-            .replace("settled_variants = 2", "settled_variants = 1")
-            .replace("time_limit_s = 12.0", "time_limit_s = 2.0");
-        let config = config(&text);
-        let mut scene = load_scene(&config, "test.toml").unwrap();
-        scene.seal.vacuum_kpa = 7.0;
-        let paths = load_paths(&config, scene.disc.hold_at_recorded_start, "test.toml").unwrap();
-        let make =
-            || Transport::with_scene(config.clone(), scene.clone(), paths.clone(), 2).unwrap();
+        let make = failing_pair();
         let (mut retiring, mut restarting) = (make(), make());
         retiring.set_retire_finished(true);
         let (mut a, mut b) = (retiring.buffers(), restarting.buffers());
