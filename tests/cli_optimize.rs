@@ -1,7 +1,9 @@
 //! End-to-end tests of `rlpkg optimize <config.toml>` on a tiny transport scene: the optimised
 //! command costs less than the one it starts from, the output folder is byte-identical whatever
 //! the number of threads, `rlpkg eval --optimized` plays the command on the same episodes with
-//! the same return, and a bad config or output folder exits 2 naming the key.
+//! the same return (and a library's commands by target tilt), receding-horizon control (`--mpc`)
+//! gives the same episodes on one and two threads, and a bad config or output folder exits 2
+//! naming the key.
 
 use std::path::Path;
 use std::process::Output;
@@ -166,6 +168,44 @@ fn optimisation_lowers_the_cost_and_writes_the_same_files_on_one_and_two_threads
     );
     assert_eq!(report["optimized"][0]["packages"], 2);
 
+    // A library: one command per target tilt for the nominal package, each no costlier than
+    // its start; eval plays it as one row, and each tilt's folder as a command of its own.
+    let library = TINY
+        .replace(
+            "packages = 2",
+            "packages = 1\nnominal_target_tilts_deg = [35.0, 55.0]",
+        )
+        .replace("iterations = 3", "iterations = 2");
+    std::fs::write(dir.path().join("library.toml"), library).unwrap();
+    ok(&rlpkg(
+        &["optimize", "library.toml", "--quiet", "--out", "lib"],
+        dir.path(),
+        "2",
+    ));
+    let lib: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("lib/summary.json")).unwrap())
+            .unwrap();
+    let entries = lib["library"].as_array().unwrap();
+    assert_eq!(entries.len(), 2, "{lib}");
+    for (entry, tilt) in entries.iter().zip([35.0, 55.0]) {
+        assert_eq!(entry["target_tilt_deg"], tilt);
+        assert!(entry["best_cost"].as_f64().unwrap() <= entry["start_cost"].as_f64().unwrap());
+        let folder = dir
+            .path()
+            .join("lib")
+            .join(entry["folder"].as_str().unwrap());
+        assert!(folder.join("trajectory.csv").exists());
+    }
+    let both = ok(&with("lib,lib/tilt-35"));
+    let report: serde_json::Value = serde_json::from_str(&both).unwrap();
+    assert_eq!(report["rows"][2]["driver"], "optimized lib");
+    assert_eq!(report["rows"][3]["driver"], "optimized tilt-35");
+    assert_eq!(
+        report["optimized"][0]["target_tilts_deg"],
+        serde_json::json!([35.0, 55.0])
+    );
+    assert!(report["optimized"][1].get("target_tilts_deg").is_none());
+
     // A folder without a summary, or a summary with the wrong number of knots, exits 2.
     let refused = with("missing");
     assert_eq!(refused.status.code(), Some(2));
@@ -198,6 +238,16 @@ fn bad_config_keys_exit_2_naming_the_key() {
             "populaton",
         ),
         ("horizon_s = 2.0", "horizon_s = -2.0", "knots.horizon_s"),
+        (
+            "packages = 2",
+            "packages = 2\nnominal_target_tilts_deg = [40.0]",
+            "conditions.packages",
+        ),
+        (
+            "seed = 5",
+            "seed = 5\n[mpc]\nhorizon_s = 0.0\nknots = 2\niterations = 1",
+            "mpc.horizon_s",
+        ),
     ] {
         setup(dir.path(), &TINY.replace(from, to));
         let output = rlpkg(&["optimize", "optimize.toml", "--quiet"], dir.path(), "1");
@@ -206,4 +256,51 @@ fn bad_config_keys_exit_2_naming_the_key() {
         assert!(stderr.contains(key), "{key}: {stderr}");
         assert!(!dir.path().join("out").exists(), "{key}: wrote output");
     }
+}
+
+#[test]
+fn receding_horizon_control_gives_the_same_episodes_on_one_and_two_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let mpc = TINY
+        .replace("packages = 2", "packages = 1")
+        .replace("population = 6", "population = 3")
+        + "\n[mpc]\nhorizon_s = 0.2\nknots = 2\niterations = 1\n";
+    setup(dir.path(), &mpc);
+    let mut outcomes = Vec::new();
+    for threads in ["1", "2"] {
+        let printed = ok(&rlpkg(
+            &[
+                "optimize",
+                "optimize.toml",
+                "--mpc",
+                "--quiet",
+                "--out",
+                threads,
+            ],
+            dir.path(),
+            threads,
+        ));
+        assert!(
+            printed.contains("per control step of one episode"),
+            "{printed}"
+        );
+        let summary: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(dir.path().join(threads).join("mpc.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(summary["outcome"]["episodes"], 1, "{summary}");
+        assert!(summary["control_steps"].as_u64().unwrap() > 1, "{summary}");
+        assert!(summary["real_time_factor"].as_f64().unwrap() > 0.0);
+        outcomes.push(summary["outcome"].clone());
+    }
+    assert_eq!(outcomes[0], outcomes[1]);
+    // --mpc needs its table.
+    setup(dir.path(), TINY);
+    let refused = rlpkg(
+        &["optimize", "optimize.toml", "--mpc", "--quiet"],
+        dir.path(),
+        "1",
+    );
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("[mpc]"));
 }

@@ -54,6 +54,7 @@ mod control;
 mod episode;
 mod evaluate;
 mod geometry;
+mod mpc;
 mod observe;
 mod optimize;
 mod path;
@@ -80,11 +81,12 @@ pub use episode::EpisodeConditions;
 pub use evaluate::{
     run_episodes, run_traced_episodes, Ending, EpisodeOutcome, OutcomeSummary, TracePoint,
 };
+pub use mpc::{HorizonSearch, RecedingHorizon};
 pub use observe::{
     critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS, WRIST_OBSERVATIONS,
 };
 pub use optimize::{
-    Cem, CemSettings, KnotCurve, OpenLoopProblem, RiskMeasure, ToolSample, ACTIONS,
+    Cem, CemSettings, CommandLibrary, KnotCurve, OpenLoopProblem, RiskMeasure, ToolSample, ACTIONS,
 };
 pub use path::TransportPath;
 pub use profile::{

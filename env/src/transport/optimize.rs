@@ -75,15 +75,41 @@ impl KnotCurve {
     }
 }
 
+/// Open-loop commands for known place poses: each optimised for the nominal package at one
+/// target tilt; an episode plays the command of the tilt nearest its own. One command is a
+/// library of one, played whatever the tilt.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CommandLibrary {
+    /// The curve every command's knots describe.
+    pub curve: KnotCurve,
+    /// `(target tilt (rad), knots)` of each command.
+    pub commands: Vec<(f64, Vec<f64>)>,
+}
+
+impl CommandLibrary {
+    /// The knots of the command whose tilt is nearest `target_tilt_rad` (the first on a tie).
+    pub fn knots_for(&self, target_tilt_rad: f64) -> &[f64] {
+        let distance = |(tilt, _): &&(f64, Vec<f64>)| (tilt - target_tilt_rad).abs();
+        let nearest = self
+            .commands
+            .iter()
+            .min_by(|a, b| distance(a).total_cmp(&distance(b)))
+            .expect("a library holds at least one command");
+        &nearest.1
+    }
+}
+
 impl Transport {
-    /// Every copy's actions now under the open-loop command `knots` of `curve`: the curves'
-    /// values at the time since the copy's episode started (what `rlpkg optimize` rolls out, so
-    /// an optimised command can be evaluated on any episodes).
-    pub fn open_loop_actions(&self, curve: &KnotCurve, knots: &[f64]) -> Vec<f32> {
+    /// Every copy's actions now under the open-loop commands of `library`: the curves, of the
+    /// command for the copy's target tilt, at the time since the copy's episode started (what
+    /// `rlpkg optimize` rolls out, so an optimised command can be evaluated on any episodes).
+    pub fn open_loop_actions(&self, library: &CommandLibrary) -> Vec<f32> {
         self.episodes
             .iter()
             .flat_map(|episode| {
-                curve
+                let knots = library.knots_for(episode.target_tilt);
+                library
+                    .curve
                     .actions(knots, episode.steps as f64 * self.dt)
                     .map(|a| a as f32)
             })
@@ -564,6 +590,33 @@ mod tests {
         };
         // The 0.875 quantile of 1, 2, 3, 4, 10 lies halfway between 4 and 10.
         assert!((between.of(&costs) - 7.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_library_plays_the_command_of_the_nearest_tilt() {
+        let curve = KnotCurve {
+            knots: 2,
+            horizon_s: 1.0,
+        };
+        let command = |v: f64| vec![v, v, 0.0, 0.0, 0.0, 0.0];
+        let library = CommandLibrary {
+            curve,
+            commands: vec![
+                (35f64.to_radians(), command(0.3)),
+                (45f64.to_radians(), command(0.5)),
+                (55f64.to_radians(), command(0.7)),
+            ],
+        };
+        for (tilt, speed) in [
+            (30.0, 0.3),
+            (39.9, 0.3),
+            (40.1, 0.5),
+            (49.0, 0.5),
+            (60.0, 0.7),
+        ] {
+            let tilt: f64 = tilt;
+            assert_eq!(library.knots_for(tilt.to_radians())[0], speed, "{tilt}");
+        }
     }
 
     #[test]

@@ -12,8 +12,9 @@ use anyhow::Context;
 use rlpkg_agents::export::OnnxPolicy;
 use rlpkg_agents::TrainedPolicy;
 use rlpkg_env::transport::{
-    load_paths, load_scene, recorded_timings, run_traced_episodes, KnotCurve, MotionLimits,
-    OutcomeSummary, PathProfile, TiltSchedule, TracePoint, TransportConfig, TransportPath,
+    load_paths, load_scene, recorded_timings, run_traced_episodes, CommandLibrary, KnotCurve,
+    MotionLimits, OutcomeSummary, PathProfile, TiltSchedule, TracePoint, TransportConfig,
+    TransportPath,
 };
 use rlpkg_env::Transport;
 use rlpkg_vec_env::{EnvError, VecEnv};
@@ -64,7 +65,8 @@ struct ProfileBaseline {
     scales: Vec<f64>,
 }
 
-/// The best open-loop command of an `rlpkg optimize` output folder (its `summary.json`).
+/// The best open-loop command of an `rlpkg optimize` output folder (its `summary.json`), or
+/// the commands of a library (one per target tilt, for the nominal package).
 #[derive(Serialize)]
 struct OptimizedCommand {
     /// The row's driver name: `optimized <folder name>`.
@@ -73,16 +75,17 @@ struct OptimizedCommand {
     /// `[conditions]` of the optimisation: the seed of its packages and how many (K).
     seed: u64,
     packages: u64,
-    /// Its risk (cost) on its own packages.
+    /// A library's target tilts (degrees); empty for one command.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    target_tilts_deg: Vec<f64>,
+    /// Its risk (cost) on its own packages (a library's: the mean over its commands).
     best_cost: f64,
     #[serde(skip)]
-    curve: KnotCurve,
-    #[serde(skip)]
-    knots: Vec<f64>,
+    library: CommandLibrary,
 }
 
-/// Reads the best command of the `rlpkg optimize` output `folder`; a missing or malformed
-/// `summary.json` is an input error naming the file and key.
+/// Reads the best command of the `rlpkg optimize` output `folder`, or its library's commands;
+/// a missing or malformed `summary.json` is an input error naming the file and key.
 fn load_optimized(folder: &Path) -> anyhow::Result<OptimizedCommand> {
     let file = folder.join("summary.json");
     let text = std::fs::read_to_string(&file).map_err(|e| {
@@ -114,25 +117,53 @@ fn load_optimized(folder: &Path) -> anyhow::Result<OptimizedCommand> {
         knots: count as usize,
         horizon_s,
     };
-    let knots: Vec<f64> = get("best_knots")
-        .and_then(serde_json::Value::as_array)
-        .map(|values| {
-            values
-                .iter()
-                .filter_map(serde_json::Value::as_f64)
-                .collect::<Vec<_>>()
-        })
-        .filter(|k: &Vec<f64>| k.len() == curve.dimension() && k.iter().all(|v| v.is_finite()))
-        .ok_or_else(|| {
-            bad(
-                "best_knots",
-                &format!(
-                    "{} finite numbers (3 x config.knots.count)",
-                    curve.dimension()
-                ),
-            )
-        })?;
+    let knots_at = |key: &str| {
+        get(key)
+            .and_then(serde_json::Value::as_array)
+            .map(|values| {
+                values
+                    .iter()
+                    .filter_map(serde_json::Value::as_f64)
+                    .collect::<Vec<_>>()
+            })
+            .filter(|k: &Vec<f64>| k.len() == curve.dimension() && k.iter().all(|v| v.is_finite()))
+            .ok_or_else(|| {
+                bad(
+                    key,
+                    &format!(
+                        "{} finite numbers (3 x config.knots.count)",
+                        curve.dimension()
+                    ),
+                )
+            })
+    };
     let number = |key: &str, expected: &str| {
+        get(key)
+            .and_then(serde_json::Value::as_f64)
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| bad(key, expected))
+    };
+    let (commands, best_cost) = match get("library").and_then(serde_json::Value::as_array) {
+        Some(entries) if !entries.is_empty() => {
+            let mut commands = Vec::new();
+            let mut cost = 0.0;
+            for i in 0..entries.len() {
+                let tilt = number(&format!("library.{i}.target_tilt_deg"), "a tilt in degrees")?;
+                commands.push((
+                    tilt.to_radians(),
+                    knots_at(&format!("library.{i}.best_knots"))?,
+                ));
+                cost += number(&format!("library.{i}.best_cost"), "a number")?;
+            }
+            (commands, cost / entries.len() as f64)
+        }
+        Some(_) => return Err(bad("library", "at least one command")),
+        None => (
+            vec![(0.0, knots_at("best_knots")?)],
+            number("best_cost", "a number")?,
+        ),
+    };
+    let integer = |key: &str, expected: &str| {
         get(key)
             .and_then(serde_json::Value::as_u64)
             .ok_or_else(|| bad(key, expected))
@@ -141,16 +172,18 @@ fn load_optimized(folder: &Path) -> anyhow::Result<OptimizedCommand> {
         || folder.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     );
+    let is_library = get("library").is_some();
     Ok(OptimizedCommand {
         driver: format!("optimized {name}"),
         folder: folder.to_path_buf(),
-        seed: number("config.conditions.seed", "an integer >= 0")?,
-        packages: number("config.conditions.packages", "an integer >= 1")?,
-        best_cost: get("best_cost")
-            .and_then(serde_json::Value::as_f64)
-            .ok_or_else(|| bad("best_cost", "a number"))?,
-        curve,
-        knots,
+        seed: integer("config.conditions.seed", "an integer >= 0")?,
+        packages: integer("config.conditions.packages", "an integer >= 1")?,
+        target_tilts_deg: match is_library {
+            true => commands.iter().map(|c| c.0.to_degrees()).collect(),
+            false => Vec::new(),
+        },
+        best_cost,
+        library: CommandLibrary { curve, commands },
     })
 }
 
@@ -309,7 +342,7 @@ fn evaluate(
         let mut env = make().map_err(input_error)?;
         let (outcomes, _) = run_traced_episodes::<anyhow::Error>(&mut env, seed, &[], |env, _| {
             crate::interrupt::check()?;
-            Ok(env.open_loop_actions(&command.curve, &command.knots))
+            Ok(env.open_loop_actions(&command.library))
         })?;
         rows.push(OutcomeSummary::of(&command.driver, &outcomes));
     }
@@ -417,14 +450,22 @@ fn evaluate(
         );
     }
     for o in &report.optimized {
-        text += &format!(
-            "{} = the best open-loop command of {} (optimised over {} package(s) of seed {}, risk {:.3}), played from each episode's start\n",
-            o.driver,
-            o.folder.display(),
-            o.packages,
-            o.seed,
-            o.best_cost
-        );
+        text += &match o.target_tilts_deg.as_slice() {
+            [] => format!(
+                "{} = the best open-loop command of {} (optimised over {} package(s) of seed {}, risk {:.3}), played from each episode's start\n",
+                o.driver,
+                o.folder.display(),
+                o.packages,
+                o.seed,
+                o.best_cost
+            ),
+            tilts => format!(
+                "{} = the open-loop commands of {} optimised for the nominal package at target tilts {tilts:?} degrees (mean cost {:.3}), each episode playing the one nearest its tilt\n",
+                o.driver,
+                o.folder.display(),
+                o.best_cost
+            ),
+        };
     }
     for b in &report.recorded {
         let pairs: Vec<String> = b
