@@ -143,23 +143,25 @@ fn load_optimized(folder: &Path) -> anyhow::Result<OptimizedCommand> {
             .filter(|v| v.is_finite())
             .ok_or_else(|| bad(key, expected))
     };
-    let (commands, best_cost) = match get("library").and_then(serde_json::Value::as_array) {
+    let (commands, target_tilts_deg, best_cost) = match get("library")
+        .and_then(serde_json::Value::as_array)
+    {
         Some(entries) if !entries.is_empty() => {
-            let mut commands = Vec::new();
+            let (mut commands, mut tilts) = (Vec::new(), Vec::new());
             let mut cost = 0.0;
             for i in 0..entries.len() {
                 let tilt = number(&format!("library.{i}.target_tilt_deg"), "a tilt in degrees")?;
-                commands.push((
-                    tilt.to_radians(),
-                    knots_at(&format!("library.{i}.best_knots"))?,
-                ));
+                let knots = knots_at(&format!("library.{i}.best_knots"))?;
+                commands.push((tilt.to_radians(), knots));
+                tilts.push(tilt);
                 cost += number(&format!("library.{i}.best_cost"), "a number")?;
             }
-            (commands, cost / entries.len() as f64)
+            (commands, tilts, cost / entries.len() as f64)
         }
         Some(_) => return Err(bad("library", "at least one command")),
         None => (
             vec![(0.0, knots_at("best_knots")?)],
+            Vec::new(),
             number("best_cost", "a number")?,
         ),
     };
@@ -172,16 +174,12 @@ fn load_optimized(folder: &Path) -> anyhow::Result<OptimizedCommand> {
         || folder.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     );
-    let is_library = get("library").is_some();
     Ok(OptimizedCommand {
         driver: format!("optimized {name}"),
         folder: folder.to_path_buf(),
         seed: integer("config.conditions.seed", "an integer >= 0")?,
         packages: integer("config.conditions.packages", "an integer >= 1")?,
-        target_tilts_deg: match is_library {
-            true => commands.iter().map(|c| c.0.to_degrees()).collect(),
-            false => Vec::new(),
-        },
+        target_tilts_deg,
         best_cost,
         library: CommandLibrary { curve, commands },
     })
