@@ -235,7 +235,8 @@ fn check_calibrate(dir: &Path, dataset_dir: &Path, scene_path: &Path) {
 
 /// One update of the transport task (configs/train/transport-packages-v1.toml, shrunk: 2 copies,
 /// 2 settled variants, 0.3 s episodes so some end within the 8-step rollout) on the imported takes'
-/// paths (both high-speed: 30 and 45 degrees at placement) and the scene built from the manifest.
+/// paths (both high-speed: 30 and 45 degrees at placement) and the scene built from the manifest;
+/// then an evaluation asking for a speed the takes do not have.
 fn check_train(dir: &Path, dataset_dir: &Path, scene_path: &Path) {
     let config =
         fs::read_to_string(repo().join("configs/train/transport-packages-v1.toml")).unwrap();
@@ -292,6 +293,27 @@ fn check_train(dir: &Path, dataset_dir: &Path, scene_path: &Path) {
         })
         .unwrap_or_else(|| panic!("no mean return in: {stdout}"));
     assert!(mean_return.is_finite(), "{stdout}");
+    // Both imported takes are high-speed: a recorded baseline at medium speed has no take to
+    // time them with, and says so without writing an evaluation.
+    let out = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args([
+            "eval",
+            "runs/transport",
+            "--episodes",
+            "1",
+            "--recorded",
+            "medium",
+        ])
+        .current_dir(dir)
+        .output()
+        .expect("run rlpkg");
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("no medium-velocity recording") && stderr.contains(TRAIN_TAKE),
+        "{stderr}"
+    );
+    assert!(!run.join("eval").exists());
 }
 
 #[test]

@@ -648,7 +648,7 @@ mod tests {
             err.contains("limits.max_path_speed_m_s")
                 && err.contains("1.2")
                 && err.contains("0.6310")
-                && err.contains("0.9465")
+                && err.contains("0.9466")
                 && err.contains("recordings of"),
             "{err}"
         );
