@@ -282,15 +282,12 @@ fn check_train(dir: &Path, dataset_dir: &Path, scene_path: &Path) {
     assert!(out.status.success(), "{stdout}{}", text(&out.stderr));
     let run = dir.join("runs/transport");
     assert!(run.join("checkpoints/latest").exists(), "{stdout}");
+    // The run's summary line: "..., mean return of the last episodes R" (NaN if none ended).
     let mean_return: f64 = stdout
-        .split("mean return ")
+        .split("mean return of the last episodes ")
         .nth(1)
         .and_then(|rest| rest.split_whitespace().next())
-        .and_then(|x| {
-            x.trim_end_matches(|c: char| !c.is_ascii_digit())
-                .parse()
-                .ok()
-        })
+        .and_then(|x| x.parse().ok())
         .unwrap_or_else(|| panic!("no mean return in: {stdout}"));
     assert!(mean_return.is_finite(), "{stdout}");
     // Both imported takes are high-speed: a recorded baseline at medium speed has no take to
