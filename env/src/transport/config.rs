@@ -251,9 +251,10 @@ impl TransportConfig {
         nominal
     }
 
-    /// Checks the robot limits against the peaks of the recordings the episodes follow
-    /// (`peaks`, [`crate::transport::load_paths`]): speed, acceleration and angular speed at most
-    /// [`LIMIT_HEADROOM`] x the recordings' peak. `reference` says which recordings, for messages.
+    /// Checks the robot limits against the tool's peaks over the recordings (`peaks`: every
+    /// recording of `recordings`, [`crate::transport::load_paths`]): speed, acceleration and
+    /// angular speed at most [`LIMIT_HEADROOM`] x their peak. `reference` names the recordings in
+    /// messages.
     pub fn check_limits(
         &self,
         peaks: &ToolPeaks,
