@@ -1,12 +1,13 @@
 //! End-to-end test of "bring your own package" on packages-v1 (docs/own-package.md) through the
 //! binary: import two takes with the split of the collection's manifest.json (one train take, one
 //! failure take), build the scene from the manifest, replay an imported take with it, calibrate
-//! one small batch on the train split; and the bad manifests that must exit with code 2, name the
+//! one small batch on the train split, train the transport task one update on the imported takes'
+//! paths; and the bad manifests that must exit with code 2, name the
 //! file and the key, and leave the output untouched.
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::Output;
+use std::process::{Command, Output};
 
 use rlpkg_mocap::{Dataset, Split};
 use rlpkg_sim::SceneConfig;
@@ -232,8 +233,88 @@ fn check_calibrate(dir: &Path, dataset_dir: &Path, scene_path: &Path) {
     );
 }
 
+/// One update of the transport task (configs/train/transport-packages-v1.toml, shrunk: 2 copies,
+/// 2 settled variants, 0.3 s episodes so some end within the 8-step rollout) on the imported takes'
+/// paths (both high-speed: 30 and 45 degrees at placement) and the scene built from the manifest;
+/// then an evaluation asking for a speed the takes do not have.
+fn check_train(dir: &Path, dataset_dir: &Path, scene_path: &Path) {
+    let config =
+        fs::read_to_string(repo().join("configs/train/transport-packages-v1.toml")).unwrap();
+    let replacements = [
+        (
+            "scene = \"configs/scenes/packages-v1.toml\"".to_string(),
+            format!("scene = \"{}\"", scene_path.display()),
+        ),
+        (
+            "recordings = \"runs/packages-v1-dataset\"".to_string(),
+            format!("recordings = \"{}\"", dataset_dir.display()),
+        ),
+        (
+            "paths = [\"a30_m0.75_high\", \"a45_m0.75_high\", \"a60_m0.75_high\"]".to_string(),
+            format!("paths = [\"{TRAIN_TAKE}\", \"{FAILURE_TAKE}\"]"),
+        ),
+        ("num_envs = 16".into(), "num_envs = 2".into()),
+        ("total_steps = 819200".into(), "total_steps = 16".into()),
+        ("rollout_steps = 64".into(), "rollout_steps = 8".into()),
+        ("minibatches = 4".into(), "minibatches = 2".into()),
+        ("time_limit_s = 12.0".into(), "time_limit_s = 0.3".into()),
+        (
+            "settled_variants = 16".into(),
+            "settled_variants = 2".into(),
+        ),
+        ("settle_s = 0.5".into(), "settle_s = 0.1".into()),
+    ];
+    let mut tiny = config;
+    for (from, to) in &replacements {
+        assert!(
+            tiny.contains(from.as_str()),
+            "no `{from}` in the shipped config"
+        );
+        tiny = tiny.replace(from.as_str(), to);
+    }
+    fs::write(dir.join("transport.toml"), tiny).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(["train", "transport.toml", "--no-export"])
+        .current_dir(dir)
+        .output()
+        .expect("run rlpkg");
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{stdout}{}", text(&out.stderr));
+    let run = dir.join("runs/transport");
+    assert!(run.join("checkpoints/latest").exists(), "{stdout}");
+    // The run's summary line: "..., mean return of the last episodes R" (NaN if none ended).
+    let mean_return: f64 = stdout
+        .split("mean return of the last episodes ")
+        .nth(1)
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("no mean return in: {stdout}"));
+    assert!(mean_return.is_finite(), "{stdout}");
+    // Both imported takes are high-speed: a recorded baseline at medium speed has no take to
+    // time them with, and says so without writing an evaluation.
+    let out = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args([
+            "eval",
+            "runs/transport",
+            "--episodes",
+            "1",
+            "--recorded",
+            "medium",
+        ])
+        .current_dir(dir)
+        .output()
+        .expect("run rlpkg");
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("no medium-velocity recording") && stderr.contains(TRAIN_TAKE),
+        "{stderr}"
+    );
+    assert!(!run.join("eval").exists());
+}
+
 #[test]
-fn a_package_goes_from_takes_to_a_scene_a_replay_and_a_calibration() {
+fn a_package_goes_from_takes_to_a_scene_a_replay_a_calibration_and_a_training() {
     let dir = tempfile::tempdir().unwrap();
     let dataset_dir = dir.path().join("dataset");
     check_import(&dataset_dir);
@@ -241,6 +322,7 @@ fn a_package_goes_from_takes_to_a_scene_a_replay_and_a_calibration() {
     check_scene(&scene_path);
     check_simulate(&dataset_dir, &scene_path, &dir.path().join("simulate"));
     check_calibrate(dir.path(), &dataset_dir, &scene_path);
+    check_train(dir.path(), &dataset_dir, &scene_path);
 }
 
 /// The shipped manifest with `edit` applied, written into `dir`.

@@ -9,6 +9,7 @@ use std::path::Path;
 use rlpkg_sim::{Randomization, SceneConfig, ToolLimits};
 use serde::{Deserialize, Serialize};
 
+use super::path::ToolPeaks;
 use super::sensors::{SensorConfig, MAX_DELAY_STEPS};
 use crate::EnvError;
 
@@ -195,12 +196,8 @@ fn check(source: &str, key: &str, value: f64, low: f64, high: f64) -> Result<(),
     }
 }
 
-/// Peak tool speed of the high-velocity recordings (m/s).
-pub const RECORDED_PEAK_SPEED_M_S: f64 = 0.63;
-/// Peak tool acceleration of the high-velocity recordings (m/s²).
-pub const RECORDED_PEAK_ACCEL_M_S2: f64 = 3.47;
-/// Peak tool angular speed of the recordings (rad/s).
-pub const RECORDED_PEAK_ANGULAR_SPEED_RAD_S: f64 = 2.07;
+/// How far the robot limits may exceed the recordings' peaks ([`TransportConfig::check_limits`]).
+pub const LIMIT_HEADROOM: f64 = 1.5;
 
 impl TransportConfig {
     /// Parses the `[transport]` table; `source` names the file in messages.
@@ -254,7 +251,53 @@ impl TransportConfig {
         nominal
     }
 
-    /// Range checks of every key.
+    /// Checks the robot limits against the tool's peaks over the recordings (`peaks`: every
+    /// recording of `recordings`, [`crate::transport::load_paths`]): speed, acceleration and
+    /// angular speed at most [`LIMIT_HEADROOM`] x their peak. `reference` names the recordings in
+    /// messages.
+    pub fn check_limits(
+        &self,
+        peaks: &ToolPeaks,
+        reference: &str,
+        source: &str,
+    ) -> Result<(), EnvError> {
+        let l = &self.limits;
+        for (key, value, peak, unit) in [
+            (
+                "limits.max_path_speed_m_s",
+                l.max_path_speed_m_s,
+                peaks.speed_m_s,
+                "m/s",
+            ),
+            (
+                "limits.max_path_accel_m_s2",
+                l.max_path_accel_m_s2,
+                peaks.accel_m_s2,
+                "m/s^2",
+            ),
+            (
+                "limits.max_angular_speed_rad_s",
+                l.max_angular_speed_rad_s,
+                peaks.angular_speed_rad_s,
+                "rad/s",
+            ),
+        ] {
+            let bound = LIMIT_HEADROOM * peak;
+            if value > bound {
+                return Err(bad(
+                    source,
+                    key,
+                    value,
+                    &format!(
+                        "at most {LIMIT_HEADROOM} x the peak {peak:.4} {unit} of {reference} = {bound:.4} {unit}"
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Range checks of every key (the robot limits against the recordings: [`Self::check_limits`]).
     pub fn validate(&self, source: &str) -> Result<(), EnvError> {
         let s = source;
         if !(self.grid[0] >= 3 && self.grid[1] >= 3 && self.grid[0] <= 64 && self.grid[1] <= 64) {
@@ -285,14 +328,14 @@ impl TransportConfig {
             "limits.max_path_speed_m_s",
             l.max_path_speed_m_s,
             0.01,
-            1.5 * RECORDED_PEAK_SPEED_M_S,
+            f64::INFINITY,
         )?;
         check(
             s,
             "limits.max_path_accel_m_s2",
             l.max_path_accel_m_s2,
             0.01,
-            1.5 * RECORDED_PEAK_ACCEL_M_S2,
+            f64::INFINITY,
         )?;
         check(
             s,
@@ -306,7 +349,7 @@ impl TransportConfig {
             "limits.max_angular_speed_rad_s",
             l.max_angular_speed_rad_s,
             0.01,
-            1.5 * RECORDED_PEAK_ANGULAR_SPEED_RAD_S,
+            f64::INFINITY,
         )?;
         check(
             s,
@@ -593,14 +636,41 @@ mod tests {
                 && err.contains("[10, 30]"),
             "{err}"
         );
-        // Faster than 1.5 x the high-velocity recordings' peak speed (0.945 m/s) is refused.
-        let err = TransportConfig::from_toml_str(
-            &text.replace("max_path_speed_m_s = 0.945", "max_path_speed_m_s = 1.2"),
+        // Faster than 1.5 x the recordings' peak speed (0.631 m/s, high velocity) is refused when
+        // the paths are loaded; the message names the key, the value, the peak and the bound.
+        let err = crate::transport::load_paths(
+            &config(&text.replace("max_path_speed_m_s = 0.945", "max_path_speed_m_s = 1.2")),
+            true,
             "t.toml",
         )
         .unwrap_err()
         .to_string();
-        assert!(err.contains("limits.max_path_speed_m_s"), "{err}");
+        assert!(
+            err.contains("limits.max_path_speed_m_s")
+                && err.contains("1.2")
+                && err.contains("0.6310")
+                && err.contains("0.9466")
+                && err.contains("recordings of"),
+            "{err}"
+        );
+        for (from, to, key) in [
+            (
+                "max_path_accel_m_s2 = 5.2",
+                "max_path_accel_m_s2 = 5.3",
+                "max_path_accel_m_s2",
+            ),
+            (
+                "max_angular_speed_rad_s = 3.1",
+                "max_angular_speed_rad_s = 3.2",
+                "max_angular_speed_rad_s",
+            ),
+        ] {
+            let err =
+                crate::transport::load_paths(&config(&text.replace(from, to)), true, "t.toml")
+                    .unwrap_err()
+                    .to_string();
+            assert!(err.contains(key), "{err}");
+        }
         let err = TransportConfig::from_toml_str(
             &text.replace("goal_jitter_m = 0.03", "goal_jiter_m = 0.03"),
             "t.toml",
@@ -616,6 +686,20 @@ mod tests {
             err.contains("transport.paths") && err.contains("NOPE"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn the_repository_configs_keep_their_limits_within_their_recordings_peaks() {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+        for name in ["transport.toml", "transport-sensors.toml"] {
+            let path = format!("{root}/configs/train/{name}");
+            let text = std::fs::read_to_string(&path)
+                .unwrap()
+                .replace("\"data/", &format!("\"{root}/data/"));
+            let config = TransportConfig::from_toml_str(&text, &path).unwrap();
+            let paths = crate::transport::load_paths(&config, true, &path).unwrap();
+            assert_eq!(paths.len(), 3, "{name}");
+        }
     }
 
     #[test]

@@ -73,8 +73,7 @@ use rlpkg_sim::{CupLoad, EnvObservation, HealthEvent, Model, SceneConfig, SealEv
 
 pub use config::{
     load_scene, FailureLimits, ObservationMode, RewardWeights, SuccessTolerances, TransportConfig,
-    TransportLimits, TransportRandomization, RECORDED_PEAK_ACCEL_M_S2,
-    RECORDED_PEAK_ANGULAR_SPEED_RAD_S, RECORDED_PEAK_SPEED_M_S,
+    TransportLimits, TransportRandomization, LIMIT_HEADROOM,
 };
 pub use control::TiltSchedule;
 pub use episode::EpisodeConditions;
@@ -88,7 +87,7 @@ pub use observe::{
 pub use optimize::{
     Cem, CemSettings, CommandLibrary, KnotCurve, OpenLoopProblem, RiskMeasure, ToolSample, ACTIONS,
 };
-pub use path::TransportPath;
+pub use path::{ToolPeaks, TransportPath};
 pub use profile::{
     minimum_jerk, plan_path_profile, LimitUse, MotionLimits, PathProfile, JERK_RAMP_S, PLAN_STEP_S,
 };

@@ -3,7 +3,7 @@
 //! placement, tool start pose).
 
 use glam::{DQuat, DVec3};
-use rlpkg_mocap::Trajectory;
+use rlpkg_mocap::{ToolTrack, Trajectory};
 use rlpkg_sim::Placement;
 
 /// Points per path (evenly spaced in arc length; 1.2-1.4 m paths give ~6 mm spacing).
@@ -38,6 +38,43 @@ pub struct TransportPath {
     pub recorded_time_s: Vec<f64>,
     /// Arc length the recorded tool had covered at those times (m).
     pub recorded_arc_m: Vec<f64>,
+}
+
+/// The largest tool speed, acceleration and angular speed along recordings: what the robot
+/// limits of `[transport.limits]` are checked against.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ToolPeaks {
+    /// Peak tool speed (m/s).
+    pub speed_m_s: f64,
+    /// Peak tool acceleration (m/s²).
+    pub accel_m_s2: f64,
+    /// Peak tool angular speed (rad/s).
+    pub angular_speed_rad_s: f64,
+}
+
+impl ToolPeaks {
+    /// The peaks of one recorded tool track.
+    pub fn of(tool: &ToolTrack) -> Self {
+        let peak = |v: &[[f64; 3]]| {
+            v.iter()
+                .map(|x| DVec3::from(*x).length())
+                .fold(0.0, f64::max)
+        };
+        Self {
+            speed_m_s: peak(&tool.velocity),
+            accel_m_s2: peak(&tool.acceleration),
+            angular_speed_rad_s: peak(&tool.angular_velocity),
+        }
+    }
+
+    /// The larger of each peak of `self` and `other`.
+    pub fn max(self, other: Self) -> Self {
+        Self {
+            speed_m_s: self.speed_m_s.max(other.speed_m_s),
+            accel_m_s2: self.accel_m_s2.max(other.accel_m_s2),
+            angular_speed_rad_s: self.angular_speed_rad_s.max(other.angular_speed_rad_s),
+        }
+    }
 }
 
 /// Angle between the tool's y axis under `q` and under `q0` (rad).

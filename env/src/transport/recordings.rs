@@ -4,11 +4,13 @@
 
 use std::path::Path;
 
-use super::{TransportConfig, TransportPath};
+use super::{ToolPeaks, TransportConfig, TransportPath};
 use crate::EnvError;
 
 /// The recorded paths `config.paths` names, from `config.recordings`, with the pick set-up the
-/// scene's replay rule gives (`hold_disc`: the scene's `disc.hold_at_recorded_start`).
+/// scene's replay rule gives (`hold_disc`: the scene's `disc.hold_at_recorded_start`). The robot
+/// limits are checked against the peaks of every recording of the dataset
+/// ([`TransportConfig::check_limits`]): the fastest tool motion recorded.
 pub fn load_paths(
     config: &TransportConfig,
     hold_disc: bool,
@@ -20,28 +22,58 @@ pub fn load_paths(
     };
     let dataset = rlpkg_mocap::Dataset::open(Path::new(&config.recordings))
         .map_err(|e| data_error(format!("transport.recordings: {e}")))?;
-    config
+    let mut peaks = ToolPeaks::default();
+    let paths = config
         .paths
         .iter()
         .map(|id| {
             let trajectory = dataset
                 .load(id)
                 .map_err(|e| data_error(format!("transport.paths: {e}")))?;
+            peaks = peaks.max(ToolPeaks::of(&trajectory.tool));
             let target = rlpkg_replay::Target::new(&trajectory, Some(0.0), hold_disc)
                 .map_err(|e| data_error(format!("transport.paths: {e}")))?;
             TransportPath::from_recording(&trajectory, target.placement)
                 .map_err(|e| data_error(format!("transport.paths: {e}")))
         })
-        .collect()
+        .collect::<Result<Vec<_>, _>>()?;
+    // The rest of the dataset: the limits are bounded by the fastest recorded motion, whichever
+    // recordings a configuration follows (an evaluation follows each held-out one in turn).
+    for entry in &dataset.entries {
+        if !config.paths.contains(&entry.id) {
+            let trajectory = dataset
+                .load(&entry.id)
+                .map_err(|e| data_error(format!("transport.recordings: {e}")))?;
+            peaks = peaks.max(ToolPeaks::of(&trajectory.tool));
+        }
+    }
+    let described = format!(
+        "the {} recordings of {}",
+        dataset.entries.len(),
+        config.recordings
+    );
+    config.check_limits(&peaks, &described, source)?;
+    Ok(paths)
 }
 
 /// Recording levels in order (`low`, `medium`, `high`), for nearest-level matching.
 const LEVELS: [&str; 3] = ["low", "medium", "high"];
 
+/// A manifest level as a number to measure nearness by: its place among [`LEVELS`], or the
+/// value itself when the manifest gives a number (an imported dataset's tilt in degrees, `30`).
+fn rank(value: &Option<String>) -> Option<f64> {
+    let value = value.as_deref()?;
+    match LEVELS.iter().position(|l| *l == value) {
+        Some(i) => Some(i as f64),
+        None => value.parse::<f64>().ok().filter(|x| x.is_finite()),
+    }
+}
+
 /// For each of `config.paths`, the recording of velocity level `velocity` (`low`, `medium` or
-/// `high`) whose timing a recorded baseline plays along that path ([`Transport::timed_actions`]):
-/// the one with the path's placement tilt level and object mass level, else the nearest tilt
-/// level (the dataset has no low-velocity recording at the high tilt), then the nearest mass.
+/// `high`, the manifest's `velocity`) whose timing a recorded baseline plays along that path
+/// ([`Transport::timed_actions`]): the one with the path's placement tilt (`orientation`) and
+/// object mass level (`mass`), else the nearest tilt (the study's dataset has no low-velocity
+/// recording at the high tilt), then the nearest mass.
 pub fn recorded_timings(
     config: &TransportConfig,
     velocity: &str,
@@ -51,15 +83,11 @@ pub fn recorded_timings(
         file: source.to_string(),
         message,
     };
-    let level = |x: &Option<String>| {
-        x.as_deref()
-            .and_then(|v| LEVELS.iter().position(|l| *l == v))
-    };
-    let wanted = LEVELS.iter().position(|l| *l == velocity).ok_or_else(|| {
-        data_error(format!(
+    if !LEVELS.contains(&velocity) {
+        return Err(data_error(format!(
             "velocity level `{velocity}`: expected low, medium or high"
-        ))
-    })?;
+        )));
+    }
     let dataset = rlpkg_mocap::Dataset::open(Path::new(&config.recordings))
         .map_err(|e| data_error(format!("transport.recordings: {e}")))?;
     config
@@ -69,25 +97,32 @@ pub fn recorded_timings(
             let entry = |id: &str| dataset.entries.iter().find(|e| e.id == id);
             let path_entry = entry(id)
                 .ok_or_else(|| data_error(format!("transport.paths: no recording `{id}`")))?;
-            let (tilt, mass) = (level(&path_entry.orientation), level(&path_entry.mass));
-            let distance = |a: Option<usize>, b: Option<usize>| match (a, b) {
-                (Some(a), Some(b)) => a.abs_diff(b),
-                _ => LEVELS.len(),
+            let (tilt, mass) = (rank(&path_entry.orientation), rank(&path_entry.mass));
+            let distance = |a: Option<f64>, b: Option<f64>| match (a, b) {
+                (Some(a), Some(b)) => (a - b).abs(),
+                _ => f64::INFINITY,
             };
             let chosen = dataset
                 .entries
                 .iter()
-                .filter(|e| level(&e.velocity) == Some(wanted))
-                .min_by_key(|e| {
-                    (
-                        distance(level(&e.orientation), tilt),
-                        distance(level(&e.mass), mass),
-                        e.id.clone(),
-                    )
+                .filter(|e| e.velocity.as_deref() == Some(velocity))
+                .min_by(|a, b| {
+                    let key = |e: &rlpkg_mocap::ManifestEntry| {
+                        (
+                            distance(rank(&e.orientation), tilt),
+                            distance(rank(&e.mass), mass),
+                        )
+                    };
+                    let ((ta, ma), (tb, mb)) = (key(a), key(b));
+                    ta.total_cmp(&tb)
+                        .then(ma.total_cmp(&mb))
+                        .then_with(|| a.id.cmp(&b.id))
                 })
                 .ok_or_else(|| {
                     data_error(format!(
-                        "transport.recordings: no {velocity}-velocity recording"
+                        "transport.recordings: {} has no {velocity}-velocity recording (manifest \
+                         `velocity`) to time the path `{id}` with",
+                        config.recordings
                     ))
                 })?;
             let trajectory = dataset
