@@ -7,15 +7,9 @@
 //! The model is the simulator itself with the episode's true package (mass, object place,
 //! material): what such a loop achieves with a perfect model, and what it costs per control step.
 
-use rand_chacha::ChaCha8Rng;
-
-use super::episode::Episode;
-use super::sensors::CopySensors;
-use super::{sim_error, Transport};
+use super::optimize::{Cem, CemSettings, CopyState, KnotCurve, ACTIONS};
+use super::Transport;
 use crate::{EnvError, VecEnv};
-use rlpkg_sim::EnvSnapshot;
-
-use super::optimize::{Cem, CemSettings, KnotCurve, ACTIONS};
 
 /// The search of each control step.
 #[derive(Debug, Clone, PartialEq)]
@@ -33,14 +27,6 @@ pub struct HorizonSearch {
     /// Bounds of the decision variables.
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
-}
-
-/// One copy's state, to restore into the candidates.
-struct CopyState {
-    episode: Episode,
-    rng: ChaCha8Rng,
-    snapshot: EnvSnapshot,
-    sensors: Option<CopySensors>,
 }
 
 /// A receding-horizon controller for every copy of one plant [`Transport`].
@@ -106,14 +92,7 @@ impl RecedingHorizon {
         let population = self.search.cem.population;
         let running: Vec<bool> = (0..plants).map(|k| !plant.retired[k]).collect();
         let states: Vec<Option<CopyState>> = (0..plants)
-            .map(|k| {
-                running[k].then(|| CopyState {
-                    episode: plant.episodes[k],
-                    rng: plant.rngs[k].clone(),
-                    snapshot: plant.sim.snapshot(k),
-                    sensors: plant.sensors.as_ref().map(|s| s.copies[k].clone()),
-                })
-            })
+            .map(|k| running[k].then(|| CopyState::capture(plant, k)))
             .collect();
         let mut searches: Vec<Cem> = (0..plants)
             .map(|k| {
@@ -173,15 +152,7 @@ impl RecedingHorizon {
         let copies = states.len() * population;
         for copy in 0..copies {
             match &states[copy / population] {
-                Some(state) => {
-                    env.sim.restore(copy, &state.snapshot).map_err(sim_error)?;
-                    env.episodes[copy] = state.episode;
-                    env.rngs[copy] = state.rng.clone();
-                    if let (Some(sensors), Some(saved)) = (&mut env.sensors, &state.sensors) {
-                        sensors.copies[copy] = saved.clone();
-                    }
-                    env.retired[copy] = false;
-                }
+                Some(state) => state.restore_into(env, copy)?,
                 None => env.retired[copy] = true,
             }
         }

@@ -260,13 +260,39 @@ impl RiskMeasure {
     }
 }
 
-/// One copy's episode at its start, to restore into any copy.
+/// One copy's episode at a moment (its draw, random stream, simulator state and sensors), to
+/// restore into any copy of a [`Transport`] on the same model.
 #[derive(Debug, Clone)]
-struct CopyStart {
+pub(super) struct CopyState {
     episode: Episode,
     rng: ChaCha8Rng,
     snapshot: EnvSnapshot,
     sensors: Option<CopySensors>,
+}
+
+impl CopyState {
+    /// Copy `k` of `env` now.
+    pub(super) fn capture(env: &Transport, k: usize) -> Self {
+        Self {
+            episode: env.episodes[k],
+            rng: env.rngs[k].clone(),
+            snapshot: env.sim.snapshot(k),
+            sensors: env.sensors.as_ref().map(|s| s.copies[k].clone()),
+        }
+    }
+
+    /// Puts this state into copy `copy` of `env` (un-retired; call `read_simulator` after the
+    /// last restore of a batch).
+    pub(super) fn restore_into(&self, env: &mut Transport, copy: usize) -> Result<(), EnvError> {
+        env.sim.restore(copy, &self.snapshot).map_err(sim_error)?;
+        env.episodes[copy] = self.episode;
+        env.rngs[copy] = self.rng.clone();
+        if let (Some(sensors), Some(saved)) = (&mut env.sensors, &self.sensors) {
+            sensors.copies[copy] = saved.clone();
+        }
+        env.retired[copy] = false;
+        Ok(())
+    }
 }
 
 /// The tool at one control step of a rollout (world frame, SI).
@@ -287,7 +313,7 @@ pub struct ToolSample {
 /// Open-loop commands for K packages, rolled out `population` candidates at a time.
 pub struct OpenLoopProblem {
     env: Transport,
-    starts: Vec<CopyStart>,
+    starts: Vec<CopyState>,
     population: usize,
     curve: KnotCurve,
 }
@@ -309,14 +335,7 @@ impl OpenLoopProblem {
         let mut env = Transport::new(config, population * packages, source)?;
         let mut buffers = env.buffers();
         env.try_reset(seed, &mut buffers)?;
-        let starts = (0..packages)
-            .map(|k| CopyStart {
-                episode: env.episodes[k],
-                rng: env.rngs[k].clone(),
-                snapshot: env.sim.snapshot(k),
-                sensors: env.sensors.as_ref().map(|s| s.copies[k].clone()),
-            })
-            .collect();
+        let starts = (0..packages).map(|k| CopyState::capture(&env, k)).collect();
         env.set_retire_finished(true);
         Ok(Self {
             env,
@@ -343,18 +362,7 @@ impl OpenLoopProblem {
 
     /// Puts package `k`'s start into copy `copy`.
     fn restore(&mut self, copy: usize, k: usize) -> Result<(), EnvError> {
-        let start = &self.starts[k];
-        self.env
-            .sim
-            .restore(copy, &start.snapshot)
-            .map_err(sim_error)?;
-        self.env.episodes[copy] = start.episode;
-        self.env.rngs[copy] = start.rng.clone();
-        if let (Some(sensors), Some(saved)) = (&mut self.env.sensors, &start.sensors) {
-            sensors.copies[copy] = saved.clone();
-        }
-        self.env.retired[copy] = false;
-        Ok(())
+        self.starts[k].restore_into(&mut self.env, copy)
     }
 
     /// Each candidate's cost (minus its episode return) on each package: `costs[c][k]`. At most
