@@ -53,6 +53,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             params: scene.params,
             object_mass_kg: target.object_mass_kg,
             disc_mass_scale: None,
+            vacuum_kpa: None,
             trajectory: Arc::new(tool),
         });
     }

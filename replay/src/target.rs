@@ -132,6 +132,7 @@ impl Target {
             params,
             object_mass_kg: self.object_mass_kg,
             disc_mass_scale,
+            vacuum_kpa: None,
             trajectory: self.tool.clone(),
         }
     }

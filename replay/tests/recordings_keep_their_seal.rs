@@ -37,6 +37,7 @@ fn no_recording_loses_a_cup_in_the_physical_scene() {
                 params: scene.params,
                 object_mass_kg: target.object_mass_kg,
                 disc_mass_scale: None,
+                vacuum_kpa: None,
                 trajectory: target.tool,
             }
         })

@@ -99,6 +99,7 @@ pub fn bench_simulator(
         params: config.params,
         object_mass_kg: 0.57,
         disc_mass_scale: None,
+        vacuum_kpa: None,
         trajectory: tool,
     };
     Simulator::new(model, vec![spec; envs])

@@ -52,7 +52,8 @@ impl StepConstants {
     }
 }
 
-/// Seal quantities fixed for a batch (see [`crate::config::SealConfig`] for the model).
+/// Seal quantities of a batch (see [`crate::config::SealConfig`] for the model); an environment
+/// with its own vacuum ([`crate::EpisodeSpec::vacuum_kpa`]) uses [`SealConstants::with_vacuum`].
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SealConstants {
     pub(crate) enabled: bool,
@@ -64,20 +65,56 @@ pub(crate) struct SealConstants {
     pub(crate) element_strength: f32,
     pub(crate) friction: f32,
     pub(crate) min_sealed_fraction: f32,
+    /// Lip radius r (m), lip strength ratio and lip elements per cup: what the capacity and the
+    /// element strength of another vacuum are computed from.
+    lip_radius_m: f32,
+    lip_strength_ratio: f32,
+    cup_size: usize,
+}
+
+/// (full capacity, element strength) of a cup at `vacuum_kpa` (N).
+fn capacities(vacuum_kpa: f32, lip_radius_m: f32, ratio: f32, cup_size: usize) -> (f32, f32) {
+    let full_capacity = vacuum_kpa * 1e3 * std::f32::consts::PI * lip_radius_m.powi(2);
+    (full_capacity, ratio * full_capacity / cup_size as f32)
 }
 
 impl SealConstants {
     pub(crate) fn new(model: &Model) -> Self {
         let s = &model.config.seal;
         let dt = model.config.dt();
-        let full_capacity = s.vacuum_kpa * 1e3 * std::f32::consts::PI * s.lip_radius_m.powi(2);
+        let (full_capacity, element_strength) = capacities(
+            s.vacuum_kpa,
+            s.lip_radius_m,
+            s.lip_strength_ratio,
+            model.cup_size,
+        );
         SealConstants {
             enabled: s.enabled,
             filter: dt / (s.load_filter_s + dt),
             full_capacity,
-            element_strength: s.lip_strength_ratio * full_capacity / model.cup_size as f32,
+            element_strength,
             friction: s.friction,
             min_sealed_fraction: s.min_sealed_fraction,
+            lip_radius_m: s.lip_radius_m,
+            lip_strength_ratio: s.lip_strength_ratio,
+            cup_size: model.cup_size,
+        }
+    }
+
+    /// These constants at an environment's own vacuum (kPa); `None` keeps the scene's (the very
+    /// same numbers, so such an environment runs as it did without the option).
+    pub(crate) fn with_vacuum(&self, vacuum_kpa: Option<f32>) -> Self {
+        match vacuum_kpa {
+            None => *self,
+            Some(v) => {
+                let (full_capacity, element_strength) =
+                    capacities(v, self.lip_radius_m, self.lip_strength_ratio, self.cup_size);
+                SealConstants {
+                    full_capacity,
+                    element_strength,
+                    ..*self
+                }
+            }
         }
     }
 

@@ -113,6 +113,11 @@ pub struct EpisodeSpec {
     /// Simulated disc kg per object kg for this environment; `None` takes the scene's
     /// `disc.mass_scale`.
     pub disc_mass_scale: Option<f32>,
+    /// Supply vacuum of this environment's cups below ambient (kPa); `None` takes the scene's
+    /// `seal.vacuum_kpa`. Sets the seal's capacity and lip strength (and the reported
+    /// [`CupLoad::capacity_n`]) of this environment only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vacuum_kpa: Option<f32>,
     /// Tool trajectory (time 0 = start of motion, after the configured rest period).
     pub trajectory: Arc<ToolTrajectory>,
 }

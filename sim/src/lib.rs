@@ -37,6 +37,7 @@
 //!     params: config.params,
 //!     object_mass_kg: 0.57,
 //!     disc_mass_scale: None,
+//!     vacuum_kpa: None,
 //!     trajectory: Arc::new(tool),
 //! };
 //! let mut sim = Simulator::new(model, vec![spec.clone(), spec])?;
@@ -113,7 +114,7 @@ pub use episode::{
 };
 pub use error::SimError;
 pub use model::{marker_grid_points, DiscMass, Model};
-pub use randomize::Randomization;
+pub use randomize::{PosteriorDraws, Randomization};
 pub use simulator::{EnvSnapshot, Simulator, LANES};
 pub use tool::{ToolCommand, ToolCommandReport, ToolState};
 pub use trajectory::{ToolPose, ToolSample, ToolTrajectory};

@@ -1,10 +1,13 @@
 //! Domain randomisation of one environment at reset: object mass and disc mass scale, where the
-//! object lies in the package and how it is turned, the package's yaw under the tool, and a scale
-//! per material parameter. Applied to a spec (no rebuild of the batch: pass the result to
-//! [`crate::Simulator::reset_env`]); the same seed gives the same values on any thread count,
-//! because each environment draws from its own generator.
+//! object lies in the package and how it is turned, the package's yaw under the tool, a scale
+//! per material parameter, the cups' supply vacuum and material parameters drawn from a
+//! calibration posterior ([`PosteriorDraws`]). Applied to a spec (no rebuild of the batch: pass
+//! the result to [`crate::Simulator::reset_env`]); the same seed gives the same values on any
+//! thread count, because each environment draws from its own generator.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
 
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -36,6 +39,116 @@ pub struct Randomization {
     /// Scale per material parameter, by the paper's name (`k_tri_e`, ...), drawn log-uniformly.
     #[serde(default, deserialize_with = "rlpkg_toml_input::map")]
     pub param_scale: BTreeMap<String, [f32; 2]>,
+    /// Supply vacuum of the package's cups below ambient (kPa), uniform per package, within
+    /// (0, 101.325]; `None` keeps the scene's `seal.vacuum_kpa` (see
+    /// [`EpisodeSpec::vacuum_kpa`]).
+    #[serde(
+        default,
+        deserialize_with = "rlpkg_toml_input::option",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub vacuum_kpa: Option<[f32; 2]>,
+    /// A calibration posterior (`rlpkg posterior` output folder, its `summary.json` or its
+    /// `samples.csv`) whose draws set the material parameters, one row per package; its table is
+    /// [`Randomization::posterior_draws`], read by whoever loads the configuration.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub posterior: Option<PathBuf>,
+    /// The draws of `posterior` once loaded (shared: cloning a configuration copies no rows).
+    #[serde(skip)]
+    pub posterior_draws: Option<Arc<PosteriorDraws>>,
+}
+
+/// Draws of material parameters from a calibration posterior: absolute SI values, one row per
+/// draw, one column per named parameter.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PosteriorDraws {
+    /// Parameter names of the columns (`k_tri_e`, ..., [`PARAM_NAMES`]).
+    pub names: Vec<String>,
+    /// The draws, `names.len()` values each (SI).
+    pub rows: Vec<Vec<f32>>,
+}
+
+impl PosteriorDraws {
+    /// Parses a `samples.csv` of `rlpkg posterior`: a header of parameter names, then one row of
+    /// values per draw, each finite and > 0 (`mu_con` >= 0). `file` names it in messages, which
+    /// give the line and column of a bad cell.
+    pub fn parse_csv(text: &str, file: &str) -> Result<Self, SimError> {
+        let bad =
+            |line: usize, column: usize, key: &str, value: &str, expected: &str| SimError::Range {
+                file: format!("{file} line {line} column {column}"),
+                key: key.to_string(),
+                value: value.to_string(),
+                expected: expected.to_string(),
+            };
+        let mut lines = text.lines();
+        let header = lines.next().unwrap_or("");
+        let mut names: Vec<String> = Vec::new();
+        for (c, name) in header.split(',').map(str::trim).enumerate() {
+            if !PARAM_NAMES.contains(&name) {
+                return Err(bad(
+                    1,
+                    c + 1,
+                    "header",
+                    &format!("{name:?}"),
+                    "a parameter name such as k_tri_e or mu_con",
+                ));
+            }
+            if names.iter().any(|n| n == name) {
+                return Err(bad(
+                    1,
+                    c + 1,
+                    "header",
+                    &format!("{name:?}"),
+                    "each parameter named once",
+                ));
+            }
+            names.push(name.to_string());
+        }
+        let mut rows = Vec::new();
+        for (i, line) in lines.enumerate() {
+            let number = i + 2;
+            if line.trim().is_empty() {
+                continue;
+            }
+            let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+            if cells.len() != names.len() {
+                return Err(bad(
+                    number,
+                    cells.len().min(names.len()) + 1,
+                    "row",
+                    &format!("{} values", cells.len()),
+                    &format!("{} values, one per header name", names.len()),
+                ));
+            }
+            let mut row = Vec::with_capacity(names.len());
+            for (c, (cell, name)) in cells.iter().zip(&names).enumerate() {
+                let value = cell.parse::<f32>().ok().filter(|v| v.is_finite());
+                let low_ok = |v: f32| if name == "mu_con" { v >= 0.0 } else { v > 0.0 };
+                match value {
+                    Some(v) if low_ok(v) => row.push(v),
+                    _ => {
+                        let expected = if name == "mu_con" {
+                            "a finite number >= 0"
+                        } else {
+                            "a finite number > 0"
+                        };
+                        return Err(bad(number, c + 1, name, cell, expected));
+                    }
+                }
+            }
+            rows.push(row);
+        }
+        if rows.is_empty() {
+            return Err(bad(
+                2,
+                1,
+                "rows",
+                "none",
+                "at least one draw below the header",
+            ));
+        }
+        Ok(PosteriorDraws { names, rows })
+    }
 }
 
 fn range_ok(r: [f32; 2], lo: f32, hi: f32) -> bool {
@@ -92,6 +205,15 @@ impl Randomization {
                 "[low, high] within [-180, 180] degrees",
             );
         }
+        if let Some(r) = self.vacuum_kpa {
+            if !(range_ok(r, 0.0, 101.325) && r[0] > 0.0) {
+                return bad(
+                    "vacuum_kpa",
+                    format!("{r:?}"),
+                    "[low, high] within (0, 101.325] kPa below ambient (a cell supplies 20-30)",
+                );
+            }
+        }
         for (name, r) in &self.param_scale {
             let key = format!("param_scale.{name}");
             if !PARAM_NAMES.contains(&name.as_str()) {
@@ -113,7 +235,11 @@ impl Randomization {
     }
 
     /// `base` with every randomised quantity drawn from `rng` (in a fixed order, so the same
-    /// generator state gives the same spec).
+    /// generator state gives the same spec). The supply vacuum and the posterior row are drawn
+    /// after everything else, and only when set, so a randomisation without them draws exactly
+    /// what it drew before they existed. With a posterior, the row's values replace the spec's
+    /// parameters (absolute SI values) and `param_scale` then multiplies them: the scales widen
+    /// the posterior rather than the scene's values.
     pub fn apply(&self, base: &EpisodeSpec, rng: &mut impl Rng) -> EpisodeSpec {
         let mut spec = base.clone();
         let mut uniform = |r: [f32; 2]| {
@@ -145,12 +271,228 @@ impl Randomization {
         let (s, c) = (0.5 * tilt).sin_cos();
         pl.disc_orientation = [s * tilt_axis.cos(), 0.0, s * tilt_axis.sin(), c];
         pl.package_yaw_rad = uniform(self.package_yaw_deg).to_radians();
-        for (name, r) in &self.param_scale {
-            let scale = uniform([r[0].ln(), r[1].ln()]).exp();
+        let scales: Vec<(&String, f32)> = self
+            .param_scale
+            .iter()
+            .map(|(name, r)| (name, uniform([r[0].ln(), r[1].ln()]).exp()))
+            .collect();
+        if let Some(r) = self.vacuum_kpa {
+            spec.vacuum_kpa = Some(uniform(r));
+        }
+        if let Some(draws) = self
+            .posterior_draws
+            .as_deref()
+            .filter(|d| !d.rows.is_empty())
+        {
+            let row = &draws.rows[rng.random_range(0..draws.rows.len())];
+            for (name, &value) in draws.names.iter().zip(row) {
+                if let Some(param) = spec.params.get_mut(name) {
+                    *param = value;
+                }
+            }
+        }
+        for (name, scale) in scales {
             if let Some(value) = spec.params.get_mut(name) {
                 *value *= scale;
             }
         }
         spec
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+    use crate::{Placement, SceneConfig, ToolTrajectory};
+
+    fn base() -> EpisodeSpec {
+        let scene = SceneConfig::preset("physical").unwrap();
+        EpisodeSpec {
+            placement: Placement::new([0.0, 0.5, 0.0], [0.15, 0.51, 0.127], [0.15, 0.5, 0.127]),
+            params: scene.params,
+            object_mass_kg: 0.5,
+            disc_mass_scale: None,
+            vacuum_kpa: None,
+            trajectory: Arc::new(ToolTrajectory::hold(
+                [0.15, 0.51, 0.127],
+                [0.0, 0.0, 0.0, 1.0],
+            )),
+        }
+    }
+
+    fn without_new_keys() -> Randomization {
+        Randomization {
+            object_mass_kg: Some([0.25, 0.75]),
+            disc_mass_scale: Some([0.9, 1.1]),
+            object_offset_m: 0.03,
+            object_tilt_deg: 10.0,
+            package_yaw_deg: [-20.0, 20.0],
+            param_scale: [
+                ("k_tri_e".to_string(), [0.5, 2.0]),
+                ("mu_con".to_string(), [0.8, 1.25]),
+            ]
+            .into_iter()
+            .collect(),
+            ..Randomization::default()
+        }
+    }
+
+    /// The draws as they were made before the vacuum and the posterior existed, written out.
+    fn drawn_the_old_way(r: &Randomization, rng: &mut ChaCha8Rng) -> EpisodeSpec {
+        let mut spec = base();
+        let mut uniform = |r: [f32; 2]| {
+            if r[0] < r[1] {
+                rng.random_range(r[0]..=r[1])
+            } else {
+                r[0]
+            }
+        };
+        spec.object_mass_kg = uniform(r.object_mass_kg.unwrap());
+        spec.disc_mass_scale = Some(uniform(r.disc_mass_scale.unwrap()));
+        let radius = r.object_offset_m * uniform([0.0, 1.0]).sqrt();
+        let heading = uniform([0.0, std::f32::consts::TAU]);
+        let (dx, dz) = (radius * heading.cos(), radius * heading.sin());
+        spec.placement.disc_position[0] += dx;
+        spec.placement.disc_position[2] += dz;
+        let tilt = uniform([0.0, r.object_tilt_deg]).to_radians();
+        let tilt_axis = uniform([0.0, std::f32::consts::TAU]);
+        let (s, c) = (0.5 * tilt).sin_cos();
+        spec.placement.disc_orientation = [s * tilt_axis.cos(), 0.0, s * tilt_axis.sin(), c];
+        spec.placement.package_yaw_rad = uniform(r.package_yaw_deg).to_radians();
+        for (name, band) in &r.param_scale {
+            let scale = uniform([band[0].ln(), band[1].ln()]).exp();
+            *spec.params.get_mut(name).unwrap() *= scale;
+        }
+        spec
+    }
+
+    fn table() -> Arc<PosteriorDraws> {
+        let text = "k_tri_e,k_spr_e,mu_con\n1000,20,0.5\n2000,30,0.6\n3000,40,0.7\n4000,50,0.8\n";
+        Arc::new(PosteriorDraws::parse_csv(text, "samples.csv").unwrap())
+    }
+
+    #[test]
+    fn without_the_new_keys_the_draws_are_those_of_before() {
+        let r = without_new_keys();
+        r.validate("test").unwrap();
+        for seed in 0..20 {
+            let mut new = ChaCha8Rng::seed_from_u64(seed);
+            let mut old = ChaCha8Rng::seed_from_u64(seed);
+            let spec = r.apply(&base(), &mut new);
+            assert_eq!(spec, drawn_the_old_way(&r, &mut old), "seed {seed}");
+            assert_eq!(spec.vacuum_kpa, None);
+            // The generator is left where it was: the next package draws the same as before.
+            assert_eq!(new.random::<u64>(), old.random::<u64>(), "seed {seed}");
+        }
+    }
+
+    #[test]
+    fn the_vacuum_and_the_posterior_are_drawn_after_everything_else() {
+        let plain = without_new_keys();
+        let extended = Randomization {
+            vacuum_kpa: Some([20.0, 30.0]),
+            posterior_draws: Some(table()),
+            ..without_new_keys()
+        };
+        extended.validate("test").unwrap();
+        for seed in 0..20 {
+            let a = plain.apply(&base(), &mut ChaCha8Rng::seed_from_u64(seed));
+            let b = extended.apply(&base(), &mut ChaCha8Rng::seed_from_u64(seed));
+            assert_eq!(a.placement, b.placement, "seed {seed}");
+            assert_eq!(a.object_mass_kg, b.object_mass_kg);
+            assert_eq!(a.disc_mass_scale, b.disc_mass_scale);
+            let vacuum = b.vacuum_kpa.unwrap();
+            assert!((20.0..=30.0).contains(&vacuum), "{vacuum}");
+        }
+    }
+
+    #[test]
+    fn a_posterior_row_sets_absolute_values_and_the_scales_multiply_them() {
+        let draws = table();
+        let r = Randomization {
+            posterior_draws: Some(draws.clone()),
+            ..Randomization::default()
+        };
+        let scene_value = base().params.k_tri_d;
+        let mut rows_seen = std::collections::BTreeSet::new();
+        for seed in 0..40 {
+            let spec = r.apply(&base(), &mut ChaCha8Rng::seed_from_u64(seed));
+            let row = draws
+                .rows
+                .iter()
+                .position(|row| row[0] == spec.params.k_tri_e)
+                .expect("k_tri_e from one of the rows");
+            assert_eq!(spec.params.k_spr_e, draws.rows[row][1]);
+            assert_eq!(spec.params.mu_con, draws.rows[row][2]);
+            // A parameter the posterior does not name keeps the scene's value.
+            assert_eq!(spec.params.k_tri_d, scene_value);
+            // The same seed picks the same row.
+            let again = r.apply(&base(), &mut ChaCha8Rng::seed_from_u64(seed));
+            assert_eq!(again, spec);
+            rows_seen.insert(row);
+        }
+        assert_eq!(rows_seen.len(), 4, "{rows_seen:?}");
+        // Scales apply on top of the row: the ratio to the row's value is the drawn scale.
+        let scaled = Randomization {
+            param_scale: [("k_tri_e".to_string(), [2.0, 2.0])].into_iter().collect(),
+            posterior_draws: Some(draws.clone()),
+            ..Randomization::default()
+        };
+        for seed in 0..10 {
+            let a = r.apply(&base(), &mut ChaCha8Rng::seed_from_u64(seed));
+            let b = scaled.apply(&base(), &mut ChaCha8Rng::seed_from_u64(seed));
+            assert_eq!(b.params.k_tri_e, 2.0 * a.params.k_tri_e, "seed {seed}");
+            assert_eq!(b.params.mu_con, a.params.mu_con);
+        }
+    }
+
+    #[test]
+    fn posterior_tables_name_the_line_and_column_of_a_bad_cell() {
+        for (text, needles) in [
+            (
+                "k_tri_e,k_bogus\n1,2\n",
+                &["samples.csv line 1 column 2", "k_bogus"][..],
+            ),
+            (
+                "k_tri_e,mu_con\n1,0.5\n2,abc\n",
+                &["line 3 column 2", "abc"],
+            ),
+            (
+                "k_tri_e,mu_con\n-1,0.5\n",
+                &["line 2 column 1", "k_tri_e", "> 0"],
+            ),
+            ("k_tri_e,mu_con\n1,inf\n", &["line 2 column 2", "mu_con"]),
+            ("k_tri_e,mu_con\n1\n", &["line 2", "2 values"]),
+            ("k_tri_e,mu_con\n", &["at least one draw"]),
+        ] {
+            let err = PosteriorDraws::parse_csv(text, "samples.csv")
+                .unwrap_err()
+                .to_string();
+            for needle in needles {
+                assert!(err.contains(needle), "{text:?}: {err}");
+            }
+        }
+        // mu_con may be 0 (a frictionless contact); stiffnesses may not.
+        PosteriorDraws::parse_csv("k_tri_e,mu_con\n1,0\n", "samples.csv").unwrap();
+    }
+
+    #[test]
+    fn a_vacuum_range_outside_the_atmosphere_is_refused() {
+        for bad in [[0.0, 10.0], [20.0, 120.0], [30.0, 20.0], [f32::NAN, 20.0]] {
+            let r = Randomization {
+                vacuum_kpa: Some(bad),
+                ..Randomization::default()
+            };
+            let err = r.validate("t.toml").unwrap_err().to_string();
+            assert!(
+                err.contains("t.toml") && err.contains("vacuum_kpa"),
+                "{err}"
+            );
+        }
     }
 }

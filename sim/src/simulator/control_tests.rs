@@ -29,6 +29,7 @@ fn spec(config: &SceneConfig, cup_height: f32) -> EpisodeSpec {
         params: config.params,
         object_mass_kg: 0.5,
         disc_mass_scale: None,
+        vacuum_kpa: None,
         trajectory: Arc::new(ToolTrajectory::hold(
             cup_point.map(f64::from),
             [0.0, 0.0, 0.0, 1.0],
@@ -263,6 +264,54 @@ fn the_cups_carry_the_package_and_a_weak_vacuum_drops_it() {
 }
 
 #[test]
+fn each_environment_seals_with_its_own_vacuum() {
+    let probe = sealed(1.0);
+    let s = spec(&probe, 0.008);
+    let w = weight(&probe, &s);
+    // The scene's vacuum holds the package (see above); 0.15 / 0.8 of it does not.
+    let c = sealed(0.8 * w);
+    let scene_kpa = c.seal.vacuum_kpa;
+    let with = |vacuum_kpa| EpisodeSpec {
+        vacuum_kpa,
+        ..s.clone()
+    };
+    let specs = vec![
+        with(None),
+        with(Some(scene_kpa * 0.15 / 0.8)),
+        with(Some(scene_kpa)),
+        with(Some(2.0 * scene_kpa)),
+    ];
+    let mut sim = Simulator::new(Arc::new(Model::new(&c).unwrap()), specs).unwrap();
+    sim.step(seconds(&sim, 3.0));
+    let failed: std::collections::BTreeSet<usize> =
+        sim.seal_events().iter().map(|e| e.env).collect();
+    assert_eq!(
+        failed.into_iter().collect::<Vec<_>>(),
+        [1],
+        "{:?}",
+        sim.seal_events()
+    );
+    let mut states = vec![EnvObservation::default(); 4];
+    sim.read_states(&mut states).unwrap();
+    assert_eq!(states[1].cups_attached, 0, "{:?}", states[1]);
+    // `None` is the scene's vacuum with the very same arithmetic: bit for bit.
+    assert_eq!(bits(&sim, 0), bits(&sim, 2));
+    let mut loads = vec![CupLoad::default(); 16];
+    sim.read_cup_loads(&mut loads).unwrap();
+    assert_eq!(&loads[..4], &loads[8..12]);
+    // Twice the vacuum, twice the capacity per sealed area, and half the utilisation.
+    for k in 0..4 {
+        let (scene, double) = (loads[k], loads[12 + k]);
+        let per_area = |l: CupLoad| l.capacity_n / l.sealed_fraction;
+        assert!(
+            (per_area(double) / per_area(scene) - 2.0).abs() < 1e-5,
+            "{scene:?} {double:?}"
+        );
+        assert!(double.attached && double.utilisation < 0.6 * scene.utilisation);
+    }
+}
+
+#[test]
 fn cups_too_far_or_over_a_fold_do_not_seal_and_the_dropped_package_falls_freely() {
     let mut c = scene([11, 13]);
     c.seal.enabled = true;
@@ -332,6 +381,7 @@ fn randomised_specs_stay_in_range_and_repeat_with_the_seed() {
         ]
         .into_iter()
         .collect(),
+        ..Randomization::default()
     };
     r.validate("test").unwrap();
     let draw = |seed| {

@@ -159,6 +159,13 @@ fn validate_spec(env: usize, spec: &EpisodeSpec) -> Result<(), SimError> {
             ));
         }
     }
+    if let Some(vacuum) = spec.vacuum_kpa {
+        if !(vacuum.is_finite() && vacuum > 0.0 && vacuum <= 101.325) {
+            return fail(format!(
+                "vacuum {vacuum} kPa: expected a number in (0, 101.325] kPa below ambient"
+            ));
+        }
+    }
     Ok(())
 }
 

@@ -23,6 +23,7 @@ fn spec(config: &SceneConfig, cup_height: f32, tool: Option<ToolTrajectory>) -> 
         params: config.params,
         object_mass_kg: 0.57,
         disc_mass_scale: None,
+        vacuum_kpa: None,
         trajectory: Arc::new(tool.unwrap_or(hold)),
     }
 }

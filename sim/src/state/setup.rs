@@ -29,6 +29,8 @@ pub(crate) struct LaneParams<const W: usize> {
     pub(crate) disc_inertia: V3<L<W>>,
     /// Gravity along world y.
     pub(crate) gravity: L<W>,
+    /// The lane's own supply vacuum (kPa), `None` for the scene's.
+    pub(crate) vacuum_kpa: [Option<f32>; W],
 }
 
 impl<const W: usize> LaneParams<W> {
@@ -52,6 +54,7 @@ impl<const W: usize> LaneParams<W> {
             disc_mass: zero,
             disc_inertia: V3::zero(),
             gravity: zero,
+            vacuum_kpa: [None; W],
         }
     }
 
@@ -92,6 +95,7 @@ impl<const W: usize> LaneParams<W> {
         self.disc_mass.0[l] = disc.mass;
         set3(&mut self.disc_inertia, l, disc.inertia);
         self.gravity.0[l] = model.config.integrator.gravity_m_s2;
+        self.vacuum_kpa[l] = spec.vacuum_kpa;
     }
 }
 

@@ -59,6 +59,7 @@ impl<const W: usize> EnvBlock<W> {
                 continue;
             }
             let lane_axis = get3(&axis, l);
+            let seal = k.seal.with_vacuum(self.setup.params.vacuum_kpa[l]);
             let mut lost_any = false;
             for c in 0..self.state.cups.len() {
                 if self.state.cups[c].attached.0[l] < 0.5 {
@@ -282,12 +283,11 @@ impl<const W: usize> EnvBlock<W> {
         let axis = q.rotate(V3::new(local.x.0[l], local.y.0[l], local.z.0[l]));
         let axis = [axis.x, axis.y, axis.z];
         let cup_size = self.state.springs.len() / self.state.cups.len();
+        let seal = k.seal.with_vacuum(self.setup.params.vacuum_kpa[l]);
         for (cup, slot) in self.state.cups.iter().zip(out.iter_mut()) {
             let attached = cup.attached.0[l] > 0.5;
             let fraction = cup.sealed_count.0[l] / cup_size as f32;
-            *slot = k
-                .seal
-                .cup_load(attached, fraction, get3(&cup.load, l), axis);
+            *slot = seal.cup_load(attached, fraction, get3(&cup.load, l), axis);
         }
     }
 }
@@ -316,6 +316,7 @@ mod tests {
             params: c.params,
             object_mass_kg: 0.5,
             disc_mass_scale: None,
+            vacuum_kpa: None,
             trajectory: Arc::new(ToolTrajectory::hold(
                 cup.map(f64::from),
                 [0.0, 0.0, 0.0, 1.0],

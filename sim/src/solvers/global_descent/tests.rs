@@ -30,6 +30,7 @@ fn spec(config: &SceneConfig, cup_height: f32) -> EpisodeSpec {
         params: config.params,
         object_mass_kg: 0.5,
         disc_mass_scale: None,
+        vacuum_kpa: None,
         trajectory: Arc::new(ToolTrajectory::hold(
             cup_point.map(f64::from),
             [0.0, 0.0, 0.0, 1.0],
