@@ -567,6 +567,30 @@ fn cases() -> Vec<Case> {
             ],
         },
         Case {
+            name: "transport: posterior draw with a negative stiffness",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "transport-posterior.toml",
+                    "posterior = \"runs/calibrate-coarse-soft-film/posterior\"",
+                    "posterior = \"posterior/samples.csv\"",
+                );
+                std::fs::create_dir(dir.join("posterior")).unwrap();
+                std::fs::write(
+                    dir.join("posterior/samples.csv"),
+                    "k_tri_e,k_spr_e,mu_con\n2000,30,0.5\n-2000,30,0.5\n",
+                )
+                .unwrap();
+                args(&["train", "transport-posterior.toml"])
+            },
+            expected: &[
+                "transport-posterior.toml",
+                "transport.randomization.package.posterior",
+                "posterior/samples.csv line 3 column 1",
+                "key `k_tri_e` = -2000",
+            ],
+        },
+        Case {
             name: "recording: cup position with four values in meta.toml",
             setup: |dir| {
                 copy_dir(

@@ -10,7 +10,7 @@ use anyhow::Context;
 use clap::Args;
 use rlpkg_agents::config::read_config_text;
 use rlpkg_agents::runners::{clean_leftovers, POLICY_FILE};
-use rlpkg_agents::TrainedPolicy;
+use rlpkg_agents::{TrainedPolicy, Trainer};
 
 use crate::cmd::export::{export_policy, ExportOptions};
 use crate::error::{agent_error, input_error};
@@ -53,6 +53,21 @@ pub struct TrainArgs {
     pub quiet: bool,
 }
 
+/// Prints how many of the randomised packages the environment's reset settled were replaced by
+/// the unrandomised one (draws the scene's solver cannot carry at its step: not sealed, or
+/// frozen), for environments that report it.
+fn report_reset(trainer: &Trainer) {
+    let counts = trainer.reset_counts();
+    let count = |name: &str| counts.iter().find(|(n, _)| n == name).map(|(_, c)| *c);
+    if let (Some(settled), Some(replaced)) = (count("settled_variants"), count("replaced_variants"))
+    {
+        println!(
+            "settled package variants: {settled}, {replaced} of them replaced by the \
+             unrandomised package (not sealed or frozen at the scene's step)"
+        );
+    }
+}
+
 /// Runs `rlpkg train`.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     let (mut trainer, run_dir) = match (&args.resume, &args.config) {
@@ -91,6 +106,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     for path in clean_leftovers(&run_dir).map_err(agent_error)? {
         eprintln!("removed the leftover temporary {}", path.display());
     }
+    report_reset(&trainer);
     let stop_after = args.stop_after.map(|s| s as usize);
     if let Some(stop) = stop_after {
         let done = trainer.updates_done();

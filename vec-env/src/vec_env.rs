@@ -130,6 +130,11 @@ pub trait VecEnv: Send {
     fn info(&self) -> &[f32] {
         &[]
     }
+    /// Counts about what the last full reset prepared, by name (e.g. randomised packages it
+    /// built and how many of them it could not use), for a trainer to show; empty by default.
+    fn reset_counts(&self) -> Vec<(String, usize)> {
+        Vec::new()
+    }
     /// Empty buffers of the right sizes for this environment (with critic buffers if the spec
     /// has a critic observation group).
     fn buffers(&self) -> StepBuffers {

@@ -206,6 +206,11 @@ impl Trainer {
         self.update
     }
 
+    /// What the environment's last full reset reports ([`VecEnv::reset_counts`]).
+    pub fn reset_counts(&self) -> Vec<(String, usize)> {
+        self.env.reset_counts()
+    }
+
     /// The environment's spec.
     pub fn spec(&self) -> &EnvSpec {
         &self.spec

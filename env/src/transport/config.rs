@@ -4,9 +4,10 @@
 //! values are rejected with the file, the key and what was expected. [`load_scene`] resolves the
 //! scene the table names.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
-use rlpkg_sim::{Randomization, SceneConfig, ToolLimits};
+use rlpkg_sim::{PosteriorDraws, Randomization, SceneConfig, ToolLimits};
 use serde::{Deserialize, Serialize};
 
 use super::path::ToolPeaks;
@@ -196,13 +197,128 @@ fn check(source: &str, key: &str, value: f64, low: f64, high: f64) -> Result<(),
     }
 }
 
+/// Largest posterior `samples.csv` read (bytes): checked before the file is read.
+pub const MAX_POSTERIOR_BYTES: u64 = 64 << 20;
+
+/// The file of an `rlpkg posterior` folder holding the draws.
+const SAMPLES_FILE: &str = "samples.csv";
+/// The file of an `rlpkg posterior` folder naming the calibration config it came from.
+const SUMMARY_FILE: &str = "summary.json";
+
+/// The `samples.csv` and, when there is one, the `summary.json` of the posterior `given` names
+/// (its folder, its summary or its samples); what was expected when there is none.
+fn posterior_files(given: &Path) -> Result<(PathBuf, Option<PathBuf>), String> {
+    let folder = if given.is_dir() {
+        given.to_path_buf()
+    } else if given.is_file() {
+        given.parent().unwrap_or(Path::new(".")).to_path_buf()
+    } else {
+        return Err(format!(
+            "an `rlpkg posterior` output folder, its {SUMMARY_FILE} or its {SAMPLES_FILE} \
+             (not found)"
+        ));
+    };
+    let named = |name: &str| given.file_name().is_some_and(|f| f == name);
+    let samples = if given.is_file() && !named(SUMMARY_FILE) {
+        given.to_path_buf()
+    } else {
+        folder.join(SAMPLES_FILE)
+    };
+    let summary = folder.join(SUMMARY_FILE);
+    let summary = (named(SUMMARY_FILE) || summary.is_file()).then_some(summary);
+    Ok((samples, summary))
+}
+
+/// The text of `path`, refused unread when larger than `limit` bytes; what was expected if not.
+fn read_limited(path: &Path, limit: u64) -> Result<String, String> {
+    let size = std::fs::metadata(path)
+        .map_err(|e| format!("a readable posterior file ({e})"))?
+        .len();
+    if size > limit {
+        return Err(format!(
+            "a posterior file of at most {} MiB ({size} bytes)",
+            limit >> 20
+        ));
+    }
+    std::fs::read_to_string(path).map_err(|e| format!("a readable UTF-8 posterior file ({e})"))
+}
+
+/// Refuses the posterior of `summary` unless the calibration it records (`config` of the
+/// summary, its `[sim] preset` and `dt`) simulated `config.scene` at the scene's step: its draws
+/// are parameters of that scene at that step, meaningless in another.
+fn check_posterior_scene(
+    config: &TransportConfig,
+    summary: &Path,
+    source: &str,
+) -> Result<(), EnvError> {
+    let key = "randomization.package.posterior";
+    let fail = |expected: String| bad(source, key, summary.display(), &expected);
+    let text = read_limited(summary, 1 << 20).map_err(&fail)?;
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+        fail(format!(
+            "a {SUMMARY_FILE} of `rlpkg posterior` (not JSON: {e})"
+        ))
+    })?;
+    let calibration = value["config"].as_str().map(PathBuf::from).ok_or_else(|| {
+        fail(format!(
+            "a {SUMMARY_FILE} naming its calibration config (`config`), as `rlpkg posterior` \
+             writes"
+        ))
+    })?;
+    let table: toml::Table = std::fs::read_to_string(&calibration)
+        .map_err(|e| e.to_string())
+        .and_then(|t| toml::from_str(&t).map_err(|e| e.to_string()))
+        .map_err(|e| {
+            fail(format!(
+                "a readable calibration config {} (named by `config`): {e}",
+                calibration.display()
+            ))
+        })?;
+    let sim = table.get("sim").and_then(|v| v.as_table());
+    let preset = sim
+        .and_then(|t| t.get("preset"))
+        .and_then(|v| v.as_str())
+        .ok_or_else(|| {
+            fail(format!(
+                "a calibration config with a [sim] preset ({})",
+                calibration.display()
+            ))
+        })?;
+    let same_file =
+        |a: &str, b: &str| match (Path::new(a).canonicalize(), Path::new(b).canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => a == b,
+        };
+    if !same_file(preset, &config.scene) {
+        return Err(fail(format!(
+            "a posterior of a calibration of transport.scene {:?}; it comes from {} whose \
+             [sim] preset is {preset:?} (the draws are that scene's parameters at its step)",
+            config.scene,
+            calibration.display()
+        )));
+    }
+    if let Some(dt) = sim.and_then(|t| t.get("dt")).and_then(|v| v.as_float()) {
+        let scene = load_scene(config, source)?;
+        if dt as f32 != scene.dt() {
+            return Err(fail(format!(
+                "a posterior calibrated at the step of transport.scene {:?} ({} s); {} \
+                 calibrated at [sim] dt = {dt} s",
+                config.scene,
+                scene.dt(),
+                calibration.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// How far the robot limits may exceed the recordings' peaks ([`TransportConfig::check_limits`]).
 pub const LIMIT_HEADROOM: f64 = 1.5;
 
 impl TransportConfig {
     /// Parses the `[transport]` table; `source` names the file in messages.
     pub fn from_table(table: &toml::Table, source: &str) -> Result<Self, EnvError> {
-        let config: TransportConfig =
+        let mut config: TransportConfig =
             table
                 .clone()
                 .try_into()
@@ -211,7 +327,37 @@ impl TransportConfig {
                     message: table_error(&e),
                 })?;
         config.validate(source)?;
+        config.load_posterior(source)?;
         Ok(config)
+    }
+
+    /// Reads the draws of `randomization.package.posterior` (if set) into
+    /// `posterior_draws`: the `samples.csv` of the folder (or of the folder of the
+    /// `summary.json` or `samples.csv`) it names, relative paths from the working directory as
+    /// `scene` and `recordings`. With a `summary.json` beside it, the calibration it records must
+    /// have calibrated this config's `scene` at its step ([`check_posterior_scene`]); a bare
+    /// `samples.csv` cannot be checked.
+    pub fn load_posterior(&mut self, source: &str) -> Result<(), EnvError> {
+        let Some(given) = self.randomization.package.posterior.clone() else {
+            return Ok(());
+        };
+        let key = "randomization.package.posterior";
+        let (samples, summary) = posterior_files(&given)
+            .map_err(|expected| bad(source, key, given.display(), &expected))?;
+        let text = read_limited(&samples, MAX_POSTERIOR_BYTES)
+            .map_err(|expected| bad(source, key, samples.display(), &expected))?;
+        let draws =
+            PosteriorDraws::parse_csv(&text, &samples.display().to_string()).map_err(|e| {
+                EnvError::ConfigParse {
+                    file: source.to_string(),
+                    message: format!("transport.{key}: {e}"),
+                }
+            })?;
+        if let Some(summary) = summary {
+            check_posterior_scene(self, &summary, source)?;
+        }
+        self.randomization.package.posterior_draws = Some(Arc::new(draws));
+        Ok(())
     }
 
     /// Parses the `[transport]` table of a whole configuration file's text.
@@ -227,7 +373,8 @@ impl TransportConfig {
     }
 
     /// The task with the nominal package at one target tilt: every randomised quantity at the
-    /// middle of its range (mass and disc mass scale the mean of theirs, material scales the
+    /// middle of its range (mass, disc mass scale and vacuum the mean of theirs, the scene's
+    /// parameters instead of posterior draws, material scales the
     /// geometric mean of their log-uniform bands), the object centred and upright, the package
     /// unturned, no pick or place jitter, one settled variant. What a command for a known place
     /// pose and an unknown package is optimised on.
@@ -244,6 +391,10 @@ impl TransportConfig {
         p.object_offset_m = 0.0;
         p.object_tilt_deg = 0.0;
         p.package_yaw_deg = [0.0; 2];
+        p.vacuum_kpa = p.vacuum_kpa.map(middle);
+        // The scene's own parameters (a calibration's best fit) stand for the posterior.
+        p.posterior = None;
+        p.posterior_draws = None;
         for band in p.param_scale.values_mut() {
             *band = [(band[0] * band[1]).sqrt(); 2];
         }
@@ -448,6 +599,21 @@ impl TransportConfig {
                 format!("{:?}", sensors.supply_vacuum_kpa),
                 "[low, high] within [1, 90] kPa below ambient (a cell supplies 20-30)",
             ));
+        }
+        // With the package's vacuum randomised the supply reading is the vacuum its seal has:
+        // a second, different range would describe another cell.
+        if let Some([plo, phi]) = self.randomization.package.vacuum_kpa {
+            if lo as f32 != plo || hi as f32 != phi {
+                return Err(bad(
+                    s,
+                    "sensors.supply_vacuum_kpa",
+                    format!("{:?}", sensors.supply_vacuum_kpa),
+                    &format!(
+                        "the range of transport.randomization.package.vacuum_kpa, [{plo}, {phi}]: \
+                         the sensors then read the vacuum each package's seal has"
+                    ),
+                ));
+            }
         }
         for (key, [lo, hi]) in [
             (
@@ -755,6 +921,184 @@ mod tests {
             .to_string();
         assert!(
             err.contains("transport.sensors") && err.contains("missing"),
+            "{err}"
+        );
+    }
+
+    /// A fresh folder under the system's temporary folder for test `name`.
+    fn temp_folder(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("rlpkg-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    /// A posterior folder in `dir`: `samples` as its samples.csv and a summary.json naming a
+    /// calibration config of scene `preset`.
+    fn posterior_folder(dir: &Path, samples: &str, preset: &str) -> PathBuf {
+        let folder = dir.join("posterior");
+        std::fs::create_dir_all(&folder).unwrap();
+        let calibration = dir.join("calibrate.toml");
+        std::fs::write(
+            &calibration,
+            format!("[sim]\npreset = {preset:?}\nbetween = 1\n"),
+        )
+        .unwrap();
+        std::fs::write(folder.join("samples.csv"), samples).unwrap();
+        let summary = serde_json::json!({ "config": calibration.display().to_string() });
+        std::fs::write(folder.join("summary.json"), summary.to_string()).unwrap();
+        folder
+    }
+
+    fn with_posterior(path: &Path) -> String {
+        test_table().replace(
+            "param_scale = { k_tri_e = [0.8, 1.25] }",
+            &format!(
+                "param_scale = {{ k_tri_e = [0.8, 1.25] }}\nposterior = {:?}",
+                path.display().to_string()
+            ),
+        )
+    }
+
+    const SAMPLES: &str = "k_tri_e,k_spr_e,mu_con\n1000,20,0.5\n2000,30,0.6\n";
+
+    #[test]
+    fn a_posterior_of_the_scene_s_calibration_is_loaded_from_its_folder_or_files() {
+        let dir = temp_folder("posterior-loads");
+        let folder = posterior_folder(&dir, SAMPLES, "physical");
+        for given in [
+            folder.clone(),
+            folder.join("summary.json"),
+            folder.join("samples.csv"),
+        ] {
+            let config = config(&with_posterior(&given));
+            let draws = config
+                .randomization
+                .package
+                .posterior_draws
+                .clone()
+                .unwrap();
+            assert_eq!(draws.names, ["k_tri_e", "k_spr_e", "mu_con"]);
+            assert_eq!(
+                draws.rows,
+                [vec![1000.0, 20.0, 0.5], vec![2000.0, 30.0, 0.6]]
+            );
+            // The nominal task is the scene's own parameters.
+            assert!(config
+                .nominal(45.0)
+                .randomization
+                .package
+                .posterior_draws
+                .is_none());
+        }
+        // A bare samples.csv (no summary beside it) cannot be checked and is taken as it is.
+        let bare = dir.join("bare.csv");
+        std::fs::write(&bare, SAMPLES).unwrap();
+        let config = config(&with_posterior(&bare));
+        assert_eq!(
+            config
+                .randomization
+                .package
+                .posterior_draws
+                .unwrap()
+                .rows
+                .len(),
+            2
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn bad_posteriors_are_refused_naming_the_file_line_and_column() {
+        let dir = temp_folder("posterior-bad");
+        let samples = dir.join("posterior").join("samples.csv");
+        let shown = samples.display().to_string();
+        for (text, needles) in [
+            (
+                "k_tri_e,k_sprung\n1,2\n",
+                vec![shown.clone(), "line 1 column 2".into(), "k_sprung".into()],
+            ),
+            (
+                "k_tri_e,mu_con\n1,0.5\n1,x\n",
+                vec![shown.clone(), "line 3 column 2".into()],
+            ),
+            (
+                "k_tri_e,mu_con\n-5,0.5\n",
+                vec![shown.clone(), "line 2 column 1".into(), "-5".into()],
+            ),
+        ] {
+            posterior_folder(&dir, text, "physical");
+            let err = TransportConfig::from_toml_str(&with_posterior(&samples), "t.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("t.toml") && err.contains("posterior"), "{err}");
+            for needle in needles {
+                assert!(err.contains(&needle), "{text:?}: {err}");
+            }
+        }
+        let missing = dir.join("nowhere");
+        let err = TransportConfig::from_toml_str(&with_posterior(&missing), "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("t.toml")
+                && err.contains(&missing.display().to_string())
+                && err.contains("not found"),
+            "{err}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_posterior_of_another_scene_is_refused_naming_both() {
+        let dir = temp_folder("posterior-scene");
+        let folder = posterior_folder(&dir, SAMPLES, "configs/scenes/other.toml");
+        let err = TransportConfig::from_toml_str(&with_posterior(&folder), "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("t.toml")
+                && err.contains("summary.json")
+                && err.contains("\"physical\"")
+                && err.contains("configs/scenes/other.toml"),
+            "{err}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_sensor_supply_range_contradicting_the_package_vacuum_is_refused() {
+        let text = sensors_table().replace(
+            "param_scale = { k_tri_e = [0.8, 1.25] }",
+            "param_scale = { k_tri_e = [0.8, 1.25] }\nvacuum_kpa = [20.0, 30.0]",
+        );
+        config(&text);
+        let err = TransportConfig::from_toml_str(
+            &text.replace(
+                "supply_vacuum_kpa = [20.0, 30.0]",
+                "supply_vacuum_kpa = [25.0, 30.0]",
+            ),
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("t.toml")
+                && err.contains("transport.sensors.supply_vacuum_kpa")
+                && err.contains("randomization.package.vacuum_kpa"),
+            "{err}"
+        );
+        let err = TransportConfig::from_toml_str(
+            &text.replace(
+                "\nvacuum_kpa = [20.0, 30.0]\n",
+                "\nvacuum_kpa = [0.0, 30.0]\n",
+            ),
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("t.toml") && err.contains("vacuum_kpa"),
             "{err}"
         );
     }

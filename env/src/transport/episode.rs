@@ -158,6 +158,7 @@ pub(super) fn base_spec(scene: &SceneConfig, path: &TransportPath) -> EpisodeSpe
         params: scene.params,
         object_mass_kg: path.object_mass_kg,
         disc_mass_scale: None,
+        vacuum_kpa: None,
         trajectory: Arc::new(ToolTrajectory::hold(
             path.points[0].to_array(),
             [q.x, q.y, q.z, q.w],

@@ -299,6 +299,15 @@ impl VecEnv for Transport {
         self.restart_copies(copies, out)
     }
 
+    /// `settled_variants` and `replaced_variants`: the randomised packages of the last reset
+    /// and how many of them were replaced by the unrandomised one (not sealed, or frozen).
+    fn reset_counts(&self) -> Vec<(String, usize)> {
+        vec![
+            ("settled_variants".into(), self.variants.len()),
+            ("replaced_variants".into(), self.replaced_variants),
+        ]
+    }
+
     fn autoreset_mode(&self) -> AutoresetMode {
         self.autoreset.mode()
     }

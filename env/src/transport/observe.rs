@@ -349,7 +349,15 @@ impl Transport {
             return;
         };
         let wrist = sensors.config.wrist_force_torque;
-        sensors.start_episode(env, |supply| self.reading(env, supply, wrist));
+        // A package with its own vacuum: the supply reads what its seal has (the unrandomised
+        // stand-in for a replaced variant has the scene's).
+        let package_supply_pa = self.config.randomization.package.vacuum_kpa.map(|_| {
+            let kpa = self.sim.spec(env).vacuum_kpa;
+            1e3 * kpa.unwrap_or(self.model.config.seal.vacuum_kpa) as f64
+        });
+        sensors.start_episode(env, package_supply_pa, |supply| {
+            self.reading(env, supply, wrist)
+        });
         self.sensors = Some(sensors);
     }
 
@@ -436,6 +444,44 @@ mod tests {
             .iter()
             .map(|n| rows[env * dim + spec.iter().position(|s| s == n).unwrap()])
             .collect()
+    }
+
+    #[test]
+    fn with_the_package_s_vacuum_randomised_the_supply_reads_the_seal_s_vacuum() {
+        let text = sensors_table().replace(
+            "param_scale = { k_tri_e = [0.8, 1.25] }",
+            "param_scale = { k_tri_e = [0.8, 1.25] }\nvacuum_kpa = [20.0, 30.0]",
+        );
+        let mut t = env(&text, 3);
+        let mut out = t.buffers();
+        t.try_reset(3, &mut out).unwrap();
+        // At least the scene's 20 kPa: every package stays sealed and keeps its own vacuum.
+        assert_eq!(t.replaced_variants(), 0);
+        assert_eq!(
+            t.reset_counts(),
+            [
+                ("settled_variants".to_string(), 2),
+                ("replaced_variants".to_string(), 0)
+            ]
+        );
+        let critic = t.spec().critic_observation.clone().unwrap();
+        for env in 0..3 {
+            let supply = columns(&critic.names, &out.critic_obs, env, &["supply_vacuum"])[0];
+            let vacuum = t
+                .simulator()
+                .spec(env)
+                .vacuum_kpa
+                .expect("the package's vacuum");
+            assert!((20.0..=30.0).contains(&vacuum), "{vacuum}");
+            assert_eq!(supply, (1e3 * vacuum as f64) as f32);
+        }
+        // Each settled variant drew its own.
+        let drawn: Vec<_> = t
+            .variants
+            .iter()
+            .map(|v| v.snapshot.spec.vacuum_kpa)
+            .collect();
+        assert!(drawn[0] != drawn[1], "{drawn:?}");
     }
 
     #[test]

@@ -269,17 +269,22 @@ impl Sensors {
         row
     }
 
-    /// Starts copy `env`'s episode: draws its supply vacuum and delays, and fills its delay lines
-    /// with the first reading (`reading` taken with the drawn supply vacuum) and the hold action.
-    pub(super) fn start_episode(&mut self, env: usize, reading: impl FnOnce(f64) -> Reading) {
+    /// Starts copy `env`'s episode: draws its supply vacuum (unless the package's seal has its
+    /// own, `package_supply_pa`, which the sensors then read) and delays, and fills its delay
+    /// lines with the first reading (`reading` taken with the supply vacuum) and the hold action.
+    pub(super) fn start_episode(
+        &mut self,
+        env: usize,
+        package_supply_pa: Option<f64>,
+        reading: impl FnOnce(f64) -> Reading,
+    ) {
         let mut rng = rng_from_words(&self.copies[env].rng);
         let [lo, hi] = self.config.supply_vacuum_kpa;
-        let supply_pa = 1e3
-            * if lo < hi {
-                rng.random_range(lo..=hi)
-            } else {
-                lo
-            };
+        let supply_pa = match package_supply_pa {
+            Some(pa) => pa,
+            None if lo < hi => 1e3 * rng.random_range(lo..=hi),
+            None => 1e3 * lo,
+        };
         let observation_delay = uniform_steps(&mut rng, self.config.observation_delay_steps);
         let action_delay = uniform_steps(&mut rng, self.config.action_delay_steps);
         let row = self.noisy_row(&mut rng, &reading(supply_pa));
@@ -394,7 +399,7 @@ mod tests {
         let mut sensors = Sensors::new(config(), 16);
         sensors.reseed(3);
         for env in 0..16 {
-            sensors.start_episode(env, reading);
+            sensors.start_episode(env, None, reading);
         }
         let delays: Vec<usize> = sensors.copies.iter().map(|c| c.actions.delay()).collect();
         assert!(delays.iter().all(|d| (1..=2).contains(d)));
@@ -423,7 +428,7 @@ mod tests {
             let mut sensors = Sensors::new(config(), 4);
             sensors.reseed(seed);
             for env in copies {
-                sensors.start_episode(env, reading);
+                sensors.start_episode(env, None, reading);
                 for _ in 0..3 {
                     sensors.measure(env, &reading(25e3));
                 }
@@ -441,7 +446,7 @@ mod tests {
         // The noise has about the configured spread.
         let mut sensors = Sensors::new(config(), 1);
         sensors.reseed(1);
-        sensors.start_episode(0, reading);
+        sensors.start_episode(0, None, reading);
         let (mut sum, mut sum2, n) = (0.0, 0.0, 4000);
         let clean = -reading(25e3).vacuum_pa[0];
         for _ in 0..n {
