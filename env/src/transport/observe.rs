@@ -98,15 +98,14 @@ pub fn critic_only_observations(num_cups: usize, materials: &[String]) -> Vec<(S
     out
 }
 
-/// The material parameters the package randomisation scales, in name order.
+/// The material parameters the package randomisation scales or draws from a posterior, in name
+/// order.
 pub(super) fn randomised_materials(config: &TransportConfig) -> Vec<String> {
-    config
-        .randomization
-        .package
-        .param_scale
-        .keys()
-        .cloned()
-        .collect()
+    let package = &config.randomization.package;
+    let drawn = package.posterior_draws.iter().flat_map(|d| d.names.iter());
+    let names: std::collections::BTreeSet<&String> =
+        package.param_scale.keys().chain(drawn).collect();
+    names.into_iter().cloned().collect()
 }
 
 /// Observation names with their units.
@@ -220,7 +219,8 @@ impl Transport {
                 (Some(a), Some(b)) if *b != 0.0 => (*a / *b) as f64,
                 _ => 1.0,
             };
-            row.push(ratio.ln());
+            // A posterior may draw `mu_con` = 0: keep the log finite.
+            row.push(ratio.max(1e-6).ln());
         }
         row
     }
