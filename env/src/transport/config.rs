@@ -983,6 +983,11 @@ mod tests {
                 draws.rows,
                 [vec![1000.0, 20.0, 0.5], vec![2000.0, 30.0, 0.6]]
             );
+            // The critic sees the log of every drawn or scaled parameter over the scene's.
+            assert_eq!(
+                crate::transport::observe::randomised_materials(&config),
+                ["k_spr_e", "k_tri_e", "mu_con"]
+            );
             // The nominal task is the scene's own parameters.
             assert!(config
                 .nominal(45.0)
