@@ -300,6 +300,76 @@ mod tests {
     use crate::math::Lanes;
     use crate::{EpisodeSpec, Placement, SceneConfig, ToolTrajectory};
 
+    /// A block of the physical scene with the seal on (10 kPa), one lane per vacuum of
+    /// `vacuums` (`None`: the scene's), every clock past the rest.
+    fn block_of<const W: usize>(vacuums: [Option<f32>; W]) -> (Model, EnvBlock<W>) {
+        let mut c = SceneConfig::preset("physical").unwrap();
+        c.package.grid = [6, 7];
+        c.seal.enabled = true;
+        c.seal.vacuum_kpa = 10.0;
+        c.seal.lip_radius_m = 0.02;
+        c.seal.friction = 0.5;
+        c.seal.lip_strength_ratio = 3.0;
+        let model = Model::new(&c).unwrap();
+        let cup = [0.15, 0.51, 0.127];
+        let specs: Vec<EpisodeSpec> = vacuums
+            .iter()
+            .map(|&vacuum_kpa| EpisodeSpec {
+                placement: Placement::new([0.0, 0.5, 0.0], cup, [0.15, 0.5, 0.127]),
+                params: c.params,
+                object_mass_kg: 0.5,
+                disc_mass_scale: None,
+                vacuum_kpa,
+                trajectory: Arc::new(ToolTrajectory::hold(
+                    cup.map(f64::from),
+                    [0.0, 0.0, 0.0, 1.0],
+                )),
+            })
+            .collect();
+        let envs: [usize; W] = std::array::from_fn(|l| l);
+        let mut b = EnvBlock::<W>::new(&model, &specs, envs, [true; W]);
+        let past_rest = 2 * (c.cups.rest_time_s as f64 / c.dt() as f64) as u64;
+        b.state.clock = [past_rest; W];
+        (model, b)
+    }
+
+    #[test]
+    fn each_lane_holds_with_its_own_vacuum() {
+        // The scene's 10 kPa gives V = 12.566 N per cup; lane 0 has half of it, lane 1 twice.
+        let (model, mut b) = block_of([Some(5.0), Some(20.0)]);
+        let k = StepConstants::new(&model);
+        let v = 10e3 * std::f32::consts::PI * 0.02f32.powi(2);
+        let n = model.cup_size as f32;
+        let level = Quat {
+            v: V3::zero(),
+            w: Lanes([1.0; 2]),
+        };
+        // The same pull on both lanes: 0.75 V straight off every cup.
+        for _ in 0..(0.1 / k.dt64) as usize {
+            for f in b.state.spring_force.iter_mut() {
+                *f = V3::new(Lanes([0.0; 2]), Lanes([-0.75 * v / n; 2]), Lanes([0.0; 2]));
+            }
+            let t = b.state.clock.map(|c| c as f64 * k.dt64);
+            b.update_seals(&model, &k, level, &t);
+        }
+        let failed: Vec<_> = b.seal_events.iter().map(|e| (e.env, e.kind)).collect();
+        assert!(
+            !failed.is_empty()
+                && failed
+                    .iter()
+                    .all(|&(env, kind)| env == 0 && kind != SealEventKind::Slid),
+            "{failed:?}"
+        );
+        assert_eq!(b.attached_cups(0), 0);
+        assert_eq!(b.attached_cups(1), 4);
+        let mut loads = [CupLoad::default(); 4];
+        b.read_cup_loads(1, &k, &mut loads);
+        for load in loads {
+            assert!((load.capacity_n - 2.0 * v).abs() < 1e-4 * v, "{load:?}");
+            assert!((load.utilisation - 0.375).abs() < 1e-3, "{load:?}");
+        }
+    }
+
     /// A one-lane block of the physical scene with the seal on, its clock past the rest.
     fn block() -> (Model, EnvBlock<1>) {
         let mut c = SceneConfig::preset("physical").unwrap();
