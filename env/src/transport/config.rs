@@ -244,8 +244,10 @@ fn read_limited(path: &Path, limit: u64) -> Result<String, String> {
 }
 
 /// Refuses the posterior of `summary` unless the calibration it records (`config` of the
-/// summary, its `[sim] preset` and `dt`) simulated `config.scene` at the scene's step: its draws
-/// are parameters of that scene at that step, meaningless in another.
+/// summary: its `[sim] preset`, `between` and `dt`) simulated the grid and the integrator
+/// (solver, substep rate, sweeps) of `config.scene`: its draws are parameters of that film at
+/// that step. The scenes may differ otherwise (a calibrated scene is its calibration's preset
+/// with the fitted values, and a transport scene may change the seal or the disc's hold).
 fn check_posterior_scene(
     config: &TransportConfig,
     summary: &Path,
@@ -284,30 +286,41 @@ fn check_posterior_scene(
                 calibration.display()
             ))
         })?;
-    let same_file =
-        |a: &str, b: &str| match (Path::new(a).canonicalize(), Path::new(b).canonicalize()) {
-            (Ok(a), Ok(b)) => a == b,
-            _ => a == b,
-        };
-    if !same_file(preset, &config.scene) {
+    let between = sim
+        .and_then(|t| t.get("between"))
+        .and_then(|v| v.as_integer())
+        .map(|p| p.clamp(0, 8) as usize);
+    let dt = sim.and_then(|t| t.get("dt")).and_then(|v| v.as_float());
+    let calibrated =
+        rlpkg_replay::load_scene(preset, Some(between.unwrap_or(1)), dt).map_err(|e| {
+            fail(format!(
+                "a calibration config whose scene loads ({}: [sim] preset {preset:?}: {e})",
+                calibration.display()
+            ))
+        })?;
+    let scene = load_scene(config, source)?;
+    // The draws are film and contact parameters of that grid at that step: the same values on
+    // another grid or integrator are another material, and may not even be stable there.
+    let differs = if calibrated.package.grid != scene.package.grid {
+        Some(format!(
+            "grid {:?} (transport: {:?})",
+            calibrated.package.grid, scene.package.grid
+        ))
+    } else if calibrated.integrator != scene.integrator {
+        Some(format!(
+            "[integrator] {:?} (transport: {:?})",
+            calibrated.integrator, scene.integrator
+        ))
+    } else {
+        None
+    };
+    if let Some(what) = differs {
         return Err(fail(format!(
-            "a posterior of a calibration of transport.scene {:?}; it comes from {} whose \
-             [sim] preset is {preset:?} (the draws are that scene's parameters at its step)",
+            "a posterior of a calibration on the grid and integrator of transport.scene {:?}; {} \
+             calibrated [sim] preset {preset:?} with {what}",
             config.scene,
             calibration.display()
         )));
-    }
-    if let Some(dt) = sim.and_then(|t| t.get("dt")).and_then(|v| v.as_float()) {
-        let scene = load_scene(config, source)?;
-        if dt as f32 != scene.dt() {
-            return Err(fail(format!(
-                "a posterior calibrated at the step of transport.scene {:?} ({} s); {} \
-                 calibrated at [sim] dt = {dt} s",
-                config.scene,
-                scene.dt(),
-                calibration.display()
-            )));
-        }
     }
     Ok(())
 }
@@ -934,16 +947,12 @@ mod tests {
     }
 
     /// A posterior folder in `dir`: `samples` as its samples.csv and a summary.json naming a
-    /// calibration config of scene `preset`.
-    fn posterior_folder(dir: &Path, samples: &str, preset: &str) -> PathBuf {
+    /// calibration config of scene `preset` with the further `[sim]` lines `sim`.
+    fn posterior_folder(dir: &Path, samples: &str, preset: &str, sim: &str) -> PathBuf {
         let folder = dir.join("posterior");
         std::fs::create_dir_all(&folder).unwrap();
         let calibration = dir.join("calibrate.toml");
-        std::fs::write(
-            &calibration,
-            format!("[sim]\npreset = {preset:?}\nbetween = 1\n"),
-        )
-        .unwrap();
+        std::fs::write(&calibration, format!("[sim]\npreset = {preset:?}\n{sim}\n")).unwrap();
         std::fs::write(folder.join("samples.csv"), samples).unwrap();
         let summary = serde_json::json!({ "config": calibration.display().to_string() });
         std::fs::write(folder.join("summary.json"), summary.to_string()).unwrap();
@@ -965,7 +974,7 @@ mod tests {
     #[test]
     fn a_posterior_of_the_scene_s_calibration_is_loaded_from_its_folder_or_files() {
         let dir = temp_folder("posterior-loads");
-        let folder = posterior_folder(&dir, SAMPLES, "physical");
+        let folder = posterior_folder(&dir, SAMPLES, "physical", "between = 1");
         for given in [
             folder.clone(),
             folder.join("summary.json"),
@@ -1032,7 +1041,7 @@ mod tests {
                 vec![shown.clone(), "line 2 column 1".into(), "-5".into()],
             ),
         ] {
-            posterior_folder(&dir, text, "physical");
+            posterior_folder(&dir, text, "physical", "between = 1");
             let err = TransportConfig::from_toml_str(&with_posterior(&samples), "t.toml")
                 .unwrap_err()
                 .to_string();
@@ -1055,19 +1064,30 @@ mod tests {
     }
 
     #[test]
-    fn a_posterior_of_another_scene_is_refused_naming_both() {
+    fn a_posterior_of_another_grid_or_step_is_refused_naming_both() {
         let dir = temp_folder("posterior-scene");
-        let folder = posterior_folder(&dir, SAMPLES, "configs/scenes/other.toml");
-        let err = TransportConfig::from_toml_str(&with_posterior(&folder), "t.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(
-            err.contains("t.toml")
-                && err.contains("summary.json")
-                && err.contains("\"physical\"")
-                && err.contains("configs/scenes/other.toml"),
-            "{err}"
-        );
+        let refusal = |preset: &str, sim: &str| {
+            let folder = posterior_folder(&dir, SAMPLES, preset, sim);
+            TransportConfig::from_toml_str(&with_posterior(&folder), "t.toml")
+                .unwrap_err()
+                .to_string()
+        };
+        // The test table trains on the physical scene at 11 x 13 (`between = 1`).
+        for (sim, differs) in [
+            ("between = 2", "grid [16, 19]"),
+            ("between = 1\ndt = 0.001", "[integrator]"),
+        ] {
+            let err = refusal("physical", sim);
+            assert!(
+                err.contains("t.toml")
+                    && err.contains("summary.json")
+                    && err.contains("transport.scene \"physical\"")
+                    && err.contains(differs),
+                "{err}"
+            );
+        }
+        let err = refusal("configs/scenes/missing.toml", "between = 1");
+        assert!(err.contains("configs/scenes/missing.toml"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

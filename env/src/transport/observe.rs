@@ -448,14 +448,19 @@ mod tests {
 
     #[test]
     fn with_the_package_s_vacuum_randomised_the_supply_reads_the_seal_s_vacuum() {
-        let text = sensors_table().replace(
-            "param_scale = { k_tri_e = [0.8, 1.25] }",
-            "param_scale = { k_tri_e = [0.8, 1.25] }\nvacuum_kpa = [20.0, 30.0]",
-        );
+        let text = sensors_table()
+            .replace(
+                "param_scale = { k_tri_e = [0.8, 1.25] }",
+                "param_scale = { k_tri_e = [0.8, 1.25] }\nvacuum_kpa = [30.0, 40.0]",
+            )
+            .replace(
+                "supply_vacuum_kpa = [20.0, 30.0]",
+                "supply_vacuum_kpa = [30.0, 40.0]",
+            );
         let mut t = env(&text, 3);
         let mut out = t.buffers();
         t.try_reset(3, &mut out).unwrap();
-        // At least the scene's 20 kPa: every package stays sealed and keeps its own vacuum.
+        // Well above the scene's 20 kPa: every package stays sealed and keeps its own vacuum.
         assert_eq!(t.replaced_variants(), 0);
         assert_eq!(
             t.reset_counts(),
@@ -472,7 +477,7 @@ mod tests {
                 .spec(env)
                 .vacuum_kpa
                 .expect("the package's vacuum");
-            assert!((20.0..=30.0).contains(&vacuum), "{vacuum}");
+            assert!((30.0..=40.0).contains(&vacuum), "{vacuum}");
             assert_eq!(supply, (1e3 * vacuum as f64) as f32);
         }
         // Each settled variant drew its own.
