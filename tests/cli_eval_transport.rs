@@ -64,6 +64,32 @@ fn the_exported_transport_policy_evaluates_exactly_as_its_checkpoint() {
         expected,
         "{from_checkpoint}\n{from_file}"
     );
+    // `--set` evaluates the file on a changed configuration: with a 1 s time limit every episode
+    // ends by 1 s, so the table changes; a bad value is refused naming the option.
+    let mut shorter = by_file.clone();
+    shorter.extend(["--set", "transport.time_limit_s=1.0", "--json"]);
+    let report: serde_json::Value =
+        serde_json::from_str(&ok(&rlpkg(&shorter, dir.path()))).unwrap();
+    let policy = &report["rows"][0];
+    assert_eq!(policy["driver"], "policy");
+    assert!(policy["time_to_place_p95_s"]
+        .as_f64()
+        .is_none_or(|t| t <= 1.0 + 1e-9));
+    let scripted = &report["rows"][1];
+    assert_eq!(scripted["timed_out_pct"], 100.0, "{report}");
+    assert_ne!(
+        table(&ok(&rlpkg(&shorter[..shorter.len() - 1], dir.path()))),
+        expected
+    );
+    let mut bad_set = by_file.clone();
+    bad_set.extend(["--set", "transport.time_limit_s=-1"]);
+    let refused = rlpkg(&bad_set, dir.path());
+    assert_eq!(refused.status.code(), Some(2));
+    let message = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        message.contains("--set transport.time_limit_s=-1") && message.contains("time_limit_s"),
+        "{message}"
+    );
     let outputs = dir.path().join("runs/transport-sensors/policy-eval");
     for name in ["summary.json", "episode-0.png", "episode-0.gif"] {
         assert!(outputs.join(name).exists(), "{name}");

@@ -8,13 +8,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use rlpkg_agents::config::read_config_text;
 use rlpkg_agents::runners::{clean_leftovers, POLICY_FILE};
 use rlpkg_agents::{TrainedPolicy, Trainer};
 
 use crate::cmd::export::{export_policy, ExportOptions};
 use crate::error::{agent_error, input_error};
-use crate::overrides::{self, Override};
+use crate::overrides::Override;
 use crate::tasks::Training;
 
 #[derive(Args)]
@@ -79,7 +78,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             (trainer, run_dir.clone())
         }
         (None, Some(config_path)) => {
-            let training = load_training(config_path, &args.set)?;
+            let training = Training::load_with(config_path, &args.set)?;
             let name = match &args.name {
                 Some(name) => name.clone(),
                 None => default_name(config_path)?,
@@ -174,32 +173,6 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-/// The training configuration at `path` with the `--set` overrides applied, checked like a file.
-/// A configuration that fails only with the overrides names the first `--set` that breaks it.
-fn load_training(path: &Path, sets: &[Override]) -> anyhow::Result<Training> {
-    if sets.is_empty() {
-        return Training::load(path).map_err(agent_error);
-    }
-    let text = read_config_text(path).map_err(agent_error)?;
-    let source = path.display().to_string();
-    let with_first = |n: usize| overrides::apply(&text, &source, &sets[..n]);
-    let err = match Training::parse(with_first(sets.len()).map_err(input_error)?, path) {
-        Ok(training) => return Ok(training),
-        Err(err) if err.is_input_error() => err,
-        Err(err) => return Err(agent_error(err)),
-    };
-    // Each prefix applies (the whole list did); the first one that fails is to blame.
-    let fails = |n: usize| with_first(n).map_or(true, |t| Training::parse(t, path).is_err());
-    let blamed = if fails(0) {
-        let all: Vec<String> = sets.iter().map(ToString::to_string).collect();
-        format!("with {}", all.join(" "))
-    } else {
-        let n = (1..=sets.len()).find(|&n| fails(n)).unwrap_or(sets.len());
-        sets[n - 1].to_string()
-    };
-    Err(input_error(format!("{blamed}: {err}")))
 }
 
 /// A run name is one plain folder name, so the run stays inside `--out-dir`.

@@ -15,6 +15,9 @@ use rlpkg_env::{transport, Transport, TransportConfig};
 use rlpkg_vec_env::{cartpole, pendulum, CartPole, EnvError, EnvSpec, Pendulum, VecEnv};
 use serde::Deserialize;
 
+use crate::error::{agent_error, input_error};
+use crate::overrides::{self, Override};
+
 /// Every task id, in the order messages list them.
 pub const IDS: [&str; 3] = [cartpole::ID, pendulum::ID, transport::ID];
 
@@ -154,6 +157,32 @@ impl Training {
     pub fn load(path: &Path) -> Result<Self, AgentError> {
         let text = read_config_text(path)?;
         Self::parse(text, path)
+    }
+
+    /// The configuration at `path` with the `--set` overrides applied, checked like a file. A
+    /// configuration that fails only with the overrides names the first `--set` that breaks it.
+    pub fn load_with(path: &Path, sets: &[Override]) -> anyhow::Result<Self> {
+        if sets.is_empty() {
+            return Self::load(path).map_err(agent_error);
+        }
+        let text = read_config_text(path).map_err(agent_error)?;
+        let source = path.display().to_string();
+        let with_first = |n: usize| overrides::apply(&text, &source, &sets[..n]);
+        let err = match Self::parse(with_first(sets.len()).map_err(input_error)?, path) {
+            Ok(training) => return Ok(training),
+            Err(err) if err.is_input_error() => err,
+            Err(err) => return Err(agent_error(err)),
+        };
+        // Each prefix applies (the whole list did); the first one that fails is to blame.
+        let fails = |n: usize| with_first(n).map_or(true, |t| Self::parse(t, path).is_err());
+        let blamed = if fails(0) {
+            let all: Vec<String> = sets.iter().map(ToString::to_string).collect();
+            format!("with {}", all.join(" "))
+        } else {
+            let n = (1..=sets.len()).find(|&n| fails(n)).unwrap_or(sets.len());
+            sets[n - 1].to_string()
+        };
+        Err(input_error(format!("{blamed}: {err}")))
     }
 
     /// The configuration of the run in `run_dir` (its copy of the file the run started from).

@@ -37,6 +37,8 @@ pub struct EpisodeOutcome {
     pub object_motion_m: f64,
     /// Largest seal utilisation (load / capacity) of any cup at any control step.
     pub peak_seal_utilisation: f64,
+    /// Settled package (variant) the episode started from.
+    pub package: usize,
 }
 
 /// The tool and the object of one copy at one control step (see [`Transport::trace_point`]).
@@ -122,9 +124,13 @@ pub fn run_traced_episodes<E: From<EnvError>>(
             episode_return: 0.0,
             object_motion_m: 0.0,
             peak_seal_utilisation: 0.0,
+            package: 0,
         };
         n
     ];
+    for (copy, o) in running.iter_mut().enumerate() {
+        o.package = env.episodes[copy].variant;
+    }
     while outcomes.iter().any(Option::is_none) {
         let actions = act(env, &buffers.obs)?;
         env.step(&actions, &mut buffers)?;
@@ -195,6 +201,11 @@ pub struct OutcomeSummary {
     pub peak_seal_max: f64,
     /// Mean undiscounted return.
     pub mean_return: f64,
+    /// Settled packages the episodes started from.
+    pub packages: usize,
+    /// 10th percentile, over those packages, of each package's share of successful episodes (%):
+    /// how the driver does on the hardest tenth of the packages (nearest rank).
+    pub package_success_p10_pct: f64,
 }
 
 impl OutcomeSummary {
@@ -210,6 +221,18 @@ impl OutcomeSummary {
         times.sort_by(f64::total_cmp);
         let mean = |xs: &mut dyn Iterator<Item = f64>| xs.sum::<f64>() / n;
         let max = |xs: &mut dyn Iterator<Item = f64>| xs.fold(0.0, f64::max);
+        // (episodes, successes) per settled package, in package order.
+        let mut tally = std::collections::BTreeMap::<usize, (usize, usize)>::new();
+        for o in outcomes {
+            let t = tally.entry(o.package).or_default();
+            t.0 += 1;
+            t.1 += usize::from(o.ending == Ending::Success);
+        }
+        let mut per_package: Vec<f64> = tally
+            .values()
+            .map(|&(n, ok)| 100.0 * ok as f64 / n as f64)
+            .collect();
+        per_package.sort_by(f64::total_cmp);
         OutcomeSummary {
             driver: driver.to_string(),
             episodes: outcomes.len(),
@@ -226,6 +249,8 @@ impl OutcomeSummary {
             peak_seal_mean: mean(&mut outcomes.iter().map(|o| o.peak_seal_utilisation)),
             peak_seal_max: max(&mut outcomes.iter().map(|o| o.peak_seal_utilisation)),
             mean_return: mean(&mut outcomes.iter().map(|o| o.episode_return)),
+            packages: per_package.len(),
+            package_success_p10_pct: percentile(&per_package, 0.10).unwrap_or(0.0),
         }
     }
 
@@ -233,14 +258,14 @@ impl OutcomeSummary {
     pub fn table(rows: &[Self]) -> String {
         let opt = |x: Option<f64>| x.map_or_else(|| "-".to_string(), |t| format!("{t:.2}"));
         let mut s = format!(
-            "{:<16} {:>5} {:>7} {:>7} {:>7} {:>7} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6} {:>6} {:>8}\n",
+            "{:<16} {:>5} {:>7} {:>7} {:>7} {:>7} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6} {:>6} {:>8} {:>5} {:>8}\n",
             "driver", "eps", "succ%", "cup%", "drop%", "unh%", "tout%", "place s", "p95 s",
-            "obj mean", "obj max", "seal", "seal^", "return"
+            "obj mean", "obj max", "seal", "seal^", "return", "pkgs", "pkg p10%"
         );
         for r in rows {
             s += &format!(
                 "{:<16} {:>5} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>9} {:>8} {:>8.3}m {:>8.3}m \
-                 {:>6.2} {:>6.2} {:>8.2}\n",
+                 {:>6.2} {:>6.2} {:>8.2} {:>5} {:>8.1}\n",
                 r.driver,
                 r.episodes,
                 r.success_pct,
@@ -254,7 +279,9 @@ impl OutcomeSummary {
                 r.object_motion_max_m,
                 r.peak_seal_mean,
                 r.peak_seal_max,
-                r.mean_return
+                r.mean_return,
+                r.packages,
+                r.package_success_p10_pct
             );
         }
         s
@@ -282,7 +309,34 @@ mod tests {
             episode_return: 1.0,
             object_motion_m: motion,
             peak_seal_utilisation: motion,
+            package: 0,
         }
+    }
+
+    #[test]
+    fn package_p10_is_the_success_of_the_hardest_tenth_of_the_packages() {
+        // Ten packages of two episodes: nine always placed, package 4 placed once.
+        let outcomes: Vec<EpisodeOutcome> = (0..20)
+            .map(|k| EpisodeOutcome {
+                package: k % 10,
+                ..outcome(
+                    if k == 14 {
+                        Ending::CupDetached
+                    } else {
+                        Ending::Success
+                    },
+                    2.0,
+                    0.1,
+                )
+            })
+            .collect();
+        let s = OutcomeSummary::of("x", &outcomes);
+        assert_eq!((s.packages, s.success_pct), (10, 95.0));
+        assert_eq!(s.package_success_p10_pct, 50.0);
+        // With package 4 placed every time, the hardest tenth succeeds fully.
+        let mut all = outcomes.clone();
+        all[14].ending = Ending::Success;
+        assert_eq!(OutcomeSummary::of("y", &all).package_success_p10_pct, 100.0);
     }
 
     #[test]
@@ -320,6 +374,9 @@ mod tests {
         })
         .unwrap();
         assert_eq!(outcomes.len(), 3);
+        for (copy, o) in outcomes.iter().enumerate() {
+            assert_eq!(o.package, t.conditions(copy).variant);
+        }
         // The traced copy: its start and each of its 20 steps; the tool held level and still.
         let trace = &traces[0];
         assert_eq!(trace.len(), 21);

@@ -20,6 +20,7 @@ use rlpkg_agents::TrainedPolicy;
 use serde::Serialize;
 
 use crate::error::{agent_error, input_error};
+use crate::overrides::Override;
 use crate::tasks::{Task, Training};
 
 /// Options of `--params` (simulator parameters against recordings) and of a policy (run folder or
@@ -36,6 +37,11 @@ pub struct EvalArgs {
     /// the file is evaluated on its task and printed as `rlpkg eval <run>` prints a run.
     #[arg(long, requires = "policy")]
     pub config: Option<PathBuf>,
+    /// With --config: override one of its values, e.g. --set
+    /// transport.scene=configs/scenes/calibrated-coarse-real-film.toml (repeatable; as `rlpkg train
+    /// --set`), to evaluate the policy on a scene or randomisation it was not trained on.
+    #[arg(long = "set", value_name = "KEY=VALUE", requires = "config")]
+    pub set: Vec<Override>,
     /// Number of deterministic evaluation episodes (one environment copy each).
     #[arg(long, default_value_t = 100, conflicts_with = "params",
           value_parser = clap::value_parser!(u64).range(1..))]

@@ -11,7 +11,7 @@ use rlpkg_agents::runners::evaluation_memory_bytes;
 use serde::Serialize;
 
 use super::EvalArgs;
-use crate::error::{agent_error, export_error, input_error};
+use crate::error::{export_error, input_error};
 use crate::tasks::{Task, Training};
 
 /// Result of [`eval_onnx_policy`].
@@ -89,7 +89,7 @@ pub fn eval_onnx_with_config(
     args: &EvalArgs,
 ) -> anyhow::Result<()> {
     let policy = OnnxPolicy::load(path).map_err(|e| export_error(e, Some(path)))?;
-    let training = Training::load(config).map_err(agent_error)?;
+    let training = Training::load_with(config, &args.set)?;
     let Task::Transport {
         config: transport,
         source,
