@@ -70,6 +70,8 @@ fn the_exported_transport_policy_evaluates_exactly_as_its_checkpoint() {
     shorter.extend(["--set", "transport.time_limit_s=1.0", "--json"]);
     let report: serde_json::Value =
         serde_json::from_str(&ok(&rlpkg(&shorter, dir.path()))).unwrap();
+    assert_eq!(report["settled_packages"], 1, "{report}");
+    assert!(report["replaced_packages"].as_u64().is_some_and(|n| n <= 1));
     let policy = &report["rows"][0];
     assert_eq!(policy["driver"], "policy");
     assert!(policy["time_to_place_p95_s"]

@@ -33,6 +33,10 @@ struct TransportReport {
     update: Option<usize>,
     global_step: Option<u64>,
     seed: u64,
+    /// Randomised packages the episodes start from, and how many of them the scene's solver could
+    /// not carry (not sealed or frozen after settling) and were replaced by the unrandomised one.
+    settled_packages: usize,
+    replaced_packages: usize,
     /// Recorded baselines: velocity level, and for each path the recording whose timing it plays.
     recorded: Vec<RecordedBaseline>,
     /// `--profile`: the motion limits that scale 1 of the profile baseline stands for.
@@ -311,6 +315,8 @@ fn evaluate(
             act(obs, episodes)
         })?;
     rows.push(OutcomeSummary::of("policy", &outcomes));
+    let (settled_packages, replaced_packages) =
+        (transport.settled_variants, env.replaced_variants());
     first_episode.push(("policy".into(), traces.remove(0)));
     for &scale in scales {
         let mut env = make().map_err(input_error)?;
@@ -414,6 +420,8 @@ fn evaluate(
         update: driver.checkpoint.map(|c| c.0),
         global_step: driver.checkpoint.map(|c| c.1),
         seed,
+        settled_packages,
+        replaced_packages,
         recorded: baselines,
         profile: (!args.profile.is_empty()).then(|| ProfileBaseline {
             base_limits,
@@ -432,6 +440,11 @@ fn evaluate(
         "{} ({trained}): {} randomised episodes from seed {} per driver; \
          scripted xS = the recorded high-velocity path played S times as fast\n",
         report.run, episodes, seed
+    );
+    text += &format!(
+        "settled packages: {}, {} of them replaced by the unrandomised package (not sealed or \
+         frozen at the scene's step)\n",
+        report.settled_packages, report.replaced_packages
     );
     if let Some(p) = &report.profile {
         let l = &p.base_limits;
