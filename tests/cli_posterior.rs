@@ -478,3 +478,162 @@ fn recover_prints_the_recovery_table() {
     assert!(truth["parameters"][1]["relative_error"].is_null());
     assert!(out_dir.join("truth-0").join("evaluations.csv").exists());
 }
+
+#[test]
+fn validate_replays_draws_and_keeps_those_within_the_threshold() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "train");
+    let preset = quick_preset(dir.path());
+    let cfg = config(dir.path(), &BOX);
+    let body = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("data/deformable-sim-real", data.to_str().unwrap())
+        .replace(
+            "preset = \"reference\"",
+            &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
+        );
+    std::fs::write(&cfg, body).unwrap();
+    calibration(dir.path(), 48);
+    let mut args = vec!["posterior", cfg.to_str().unwrap()];
+    args.extend(QUICK);
+    let out = rlpkg(&args, "2");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+
+    let validate = |epsilon: &str, out: &Path, threads: &str| {
+        let output = rlpkg(
+            &[
+                "posterior",
+                cfg.to_str().unwrap(),
+                "--validate",
+                "6",
+                "--epsilon-loss",
+                epsilon,
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            threads,
+        );
+        assert!(output.status.success(), "{}", text(&output.stderr));
+        text(&output.stdout)
+    };
+    // A threshold no replay reaches keeps every draw that did not diverge.
+    let all = dir.path().join("all");
+    let printed = validate("1e9", &all, "1");
+    assert!(printed.contains("replayed draws"), "{printed}");
+    let replayed = std::fs::read_to_string(all.join("replayed.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = replayed
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 6);
+    // Rows of the posterior's 1000 draws, evenly spaced; the loss is the 5th column after the row.
+    let draw_rows: Vec<&str> = rows.iter().map(|r| r[0]).collect();
+    assert_eq!(draw_rows, ["0", "166", "333", "500", "666", "833"]);
+    let losses: Vec<f64> = rows.iter().map(|r| r[4].parse().unwrap()).collect();
+    let finite: Vec<f64> = losses.iter().copied().filter(|l| l.is_finite()).collect();
+    assert!(finite.len() >= 4, "{losses:?}");
+    assert!(finite.iter().all(|l| *l > 0.0));
+    assert!(
+        finite.iter().any(|l| *l != finite[0]),
+        "the draws differ: {losses:?}"
+    );
+
+    // The median as the threshold keeps exactly the draws at or below it, with their values, and
+    // the replay does not depend on the number of threads.
+    let mut sorted = finite.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[(sorted.len() - 1) / 2];
+    let half = dir.path().join("half");
+    validate(&format!("{median:e}"), &half, "2");
+    let again = std::fs::read_to_string(half.join("replayed.csv")).unwrap();
+    let again_losses: Vec<&str> = again
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(4).unwrap())
+        .collect();
+    let first_losses: Vec<&str> = rows.iter().map(|r| r[4]).collect();
+    assert_eq!(again_losses, first_losses);
+    let kept_values: Vec<String> = rows
+        .iter()
+        .zip(&losses)
+        .filter(|(_, l)| **l <= median)
+        .map(|(r, _)| r[1..4].join(","))
+        .collect();
+    let samples = std::fs::read_to_string(half.join("samples.csv")).unwrap();
+    let mut lines = samples.lines();
+    assert_eq!(lines.next(), Some("k_tri_e,k_edge_e,mu_con"));
+    assert_eq!(lines.collect::<Vec<_>>(), kept_values);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(half.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["config"], cfg.to_str().unwrap());
+    assert_eq!(summary["validation"]["replayed"], 6);
+    assert_eq!(summary["validation"]["kept"], kept_values.len());
+    assert_eq!(
+        summary["validation"]["parameters"]
+            .as_array()
+            .unwrap()
+            .len(),
+        3
+    );
+    // The kept draws are a posterior `eval --params` takes.
+    let eval = rlpkg(
+        &[
+            "eval",
+            "--params",
+            half.join("samples.csv").to_str().unwrap(),
+            "--draws",
+            "1",
+            "--data",
+            data.to_str().unwrap(),
+            "--split",
+            "train",
+            "--out",
+            dir.path().join("eval").to_str().unwrap(),
+            "--json",
+        ],
+        "2",
+    );
+    assert!(eval.status.success(), "{}", text(&eval.stderr));
+
+    // A folder without a posterior is named, and nothing is written.
+    let empty = dir.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let missing = rlpkg(
+        &[
+            "posterior",
+            cfg.to_str().unwrap(),
+            "--validate",
+            "2",
+            "--posterior",
+            empty.to_str().unwrap(),
+        ],
+        "1",
+    );
+    assert_eq!(missing.status.code(), Some(2));
+    assert!(
+        text(&missing.stderr).contains("summary.json"),
+        "{}",
+        text(&missing.stderr)
+    );
+    assert!(!empty.join("validated").exists());
+    // More draws than the posterior holds.
+    let too_many = rlpkg(
+        &[
+            "posterior",
+            cfg.to_str().unwrap(),
+            "--validate",
+            "1001",
+            "--out",
+            empty.to_str().unwrap(),
+        ],
+        "1",
+    );
+    assert_eq!(too_many.status.code(), Some(2));
+    assert!(
+        text(&too_many.stderr).contains("--validate 1001"),
+        "{}",
+        text(&too_many.stderr)
+    );
+    assert_eq!(std::fs::read_dir(&empty).unwrap().count(), 0);
+}

@@ -106,6 +106,13 @@ use sensors::Sensors;
 /// The id the command line's task registry knows this environment by.
 pub const ID: &str = "Transport-v0";
 
+/// Largest cup utilisation the task reads: twice the seal's limit. The simulator reports an
+/// attached cup loaded past its capacity as infinitely utilised until its next seal update
+/// detaches it (and does not check seals during the scene's rest period); the reward, the
+/// observations, the vacuum sensors and the evaluation read this value instead, so a failing cup
+/// costs a bounded seal penalty and no observation is infinite.
+pub const UTILISATION_CEILING: f32 = 2.0;
+
 /// The transport task on `num_envs` copies of the package simulator.
 pub struct Transport {
     config: TransportConfig,
@@ -264,6 +271,7 @@ impl Transport {
         self.sim
             .read_cup_loads(&mut self.loads)
             .map_err(sim_error)?;
+        saturate_utilisation(&mut self.loads);
         if !self.cup_forces.is_empty() {
             self.sim
                 .read_cup_forces(&mut self.cup_forces)
@@ -279,6 +287,14 @@ impl Transport {
         self.seal.clear();
         self.sim.drain_events(&mut self.health, &mut self.seal);
         self.read_simulator()
+    }
+}
+
+/// Caps every cup's utilisation at [`UTILISATION_CEILING`] (a non-finite one included).
+fn saturate_utilisation(loads: &mut [CupLoad]) {
+    for load in loads {
+        // `f32::min` returns the ceiling for NaN too.
+        load.utilisation = load.utilisation.min(UTILISATION_CEILING);
     }
 }
 
@@ -378,5 +394,44 @@ impl VecEnv for Transport {
 
     fn info(&self) -> &[f32] {
         &self.info
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utilisation_read_by_the_task_is_capped_at_the_ceiling() {
+        let load = |utilisation| CupLoad {
+            attached: true,
+            utilisation,
+            ..CupLoad::default()
+        };
+        let mut loads = [f32::INFINITY, f32::NAN, 5.0, 0.7, 0.0].map(load);
+        saturate_utilisation(&mut loads);
+        let read: Vec<f32> = loads.iter().map(|l| l.utilisation).collect();
+        assert_eq!(read, [2.0, 2.0, 2.0, 0.7, 0.0]);
+        // The seal penalty of a step with a failing cup is then finite: 4 x (2 - 0.5) x 0.05.
+        let weights = RewardWeights {
+            progress: 0.0,
+            time: 0.0,
+            object_motion: 0.0,
+            seal: 4.0,
+            seal_threshold: 0.5,
+            jerk: 0.0,
+            angular_jerk: 0.0,
+            failure: 30.0,
+            success: 0.0,
+        };
+        let outcome = StepOutcome {
+            dt_s: 0.05,
+            peak_utilisation: read[0] as f64,
+            failed: true,
+            ..StepOutcome::default()
+        };
+        let terms = RewardTerms::of(&weights, &outcome);
+        assert!((terms.seal + 0.3).abs() < 1e-12, "{terms:?}");
+        assert!((terms.total() + 30.3).abs() < 1e-12, "{terms:?}");
     }
 }

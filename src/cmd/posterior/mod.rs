@@ -8,10 +8,13 @@
 //!
 //! - [`predictive`]: `rlpkg eval --params <summary.json or samples.csv>`, the posterior-predictive
 //!   Table 1;
-//! - [`recover`]: `rlpkg posterior CONFIG --recover K`, the parameter-recovery table.
+//! - [`recover`]: `rlpkg posterior CONFIG --recover K`, the parameter-recovery table;
+//! - [`validate`]: `rlpkg posterior CONFIG --validate N`, the draws replayed on the simulator and
+//!   kept where they fit.
 
 pub mod predictive;
 mod recover;
+mod validate;
 
 use std::path::{Path, PathBuf};
 
@@ -78,6 +81,15 @@ pub struct PosteriorArgs {
     #[arg(long, value_name = "N", requires = "recover",
           value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub iterations: Option<u64>,
+    /// Validate an existing posterior instead: replay N of its draws with the calibration's
+    /// objective and keep those within the likelihood threshold (the posterior's own, or
+    /// --epsilon-loss); writes to `<posterior>/validated` unless --out is given.
+    #[arg(long, value_name = "N", conflicts_with = "recover",
+          value_parser = clap::value_parser!(u64).range(1..=validate::MAX_VALIDATE))]
+    pub validate: Option<u64>,
+    /// Validation: the posterior folder [default: `posterior` in the calibration folder].
+    #[arg(long, value_name = "DIR", requires = "validate")]
+    pub posterior: Option<PathBuf>,
 }
 
 /// `summary.json`: the calibration config and folder the posterior came from (what `eval --params`
@@ -110,6 +122,20 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
         return recover::run(&args, config, truths as usize, settings);
     }
     let calibration = args.from.clone().unwrap_or(config.out_dir.clone());
+    if let Some(draws) = args.validate {
+        let posterior = args
+            .posterior
+            .clone()
+            .unwrap_or(calibration.join("posterior"));
+        return validate::run(validate::ValidateArgs {
+            config_path: &args.config,
+            config,
+            out: args.out.clone().unwrap_or(posterior.join("validated")),
+            posterior,
+            draws: draws as usize,
+            epsilon_loss: args.epsilon_loss,
+        });
+    }
     let log_path = calibration.join("evaluations.csv");
     let evaluations = posterior::read_evaluations(&log_path, &space)
         .map_err(|e| input_error(format!("{e} (parameters of {})", args.config.display())))?;

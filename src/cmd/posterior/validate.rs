@@ -1,0 +1,319 @@
+//! `rlpkg posterior CONFIG --validate N`: the posterior's draws checked on the simulator.
+//!
+//! `rlpkg posterior` samples the GP surrogate of the calibration loss; where the calibration's
+//! evaluations are sparse, the surrogate can promise a fit the simulator does not give (and
+//! packages no gripper carries). This replays `N` draws, evenly spaced through `samples.csv`,
+//! with the calibration's own objective (its trajectories, their first `sim.max_seconds`, its loss
+//! weights) and keeps those whose loss is within the posterior's likelihood threshold `ε`:
+//! rejection with the surrogate posterior as the proposal, so the kept draws are that posterior
+//! restricted to parameters that really fit the recordings. A draw that diverges is rejected.
+//!
+//! Writes, in `<posterior>/validated` (or `--out`): `samples.csv` (the kept draws, the format of
+//! any posterior, so `randomization.package.posterior` and `eval --params` take the folder),
+//! `summary.json` (the posterior's, with a `validation` block: threshold, counts and the kept
+//! draws' 90 % intervals) and `replayed.csv` (every replayed draw: its row in the posterior's
+//! `samples.csv`, its values, loss, Chamfer, object MSE and whether it was kept).
+
+use std::path::{Path, PathBuf};
+
+use rlpkg_calib::config::CalibrateConfig;
+use rlpkg_calib::driver::{BatchObjective, CandidateResult};
+use rlpkg_calib::objective::SimObjective;
+use rlpkg_mocap::Dataset;
+use serde::Serialize;
+
+use super::predictive::{read_samples, SAMPLES_FILE, SUMMARY_FILE};
+use crate::error::{input_error, output_error};
+use crate::files::write_atomic;
+
+/// Largest `--validate`: each draw replays every calibration trajectory.
+pub const MAX_VALIDATE: u64 = 4096;
+
+/// Draws replayed in one batched rollout (and between two progress lines).
+const CHUNK: usize = 16;
+
+/// The files `--validate` writes into its output folder.
+const OUTPUT_FILES: [&str; 3] = [SAMPLES_FILE, SUMMARY_FILE, "replayed.csv"];
+
+/// What `--validate` needs of the command line.
+pub struct ValidateArgs<'a> {
+    /// The calibration config the posterior was inferred for.
+    pub config_path: &'a Path,
+    /// Its parsed contents.
+    pub config: CalibrateConfig,
+    /// Folder of the posterior to validate.
+    pub posterior: PathBuf,
+    /// Output folder.
+    pub out: PathBuf,
+    /// Draws to replay.
+    pub draws: usize,
+    /// Threshold instead of the posterior's own `epsilon_loss`.
+    pub epsilon_loss: Option<f64>,
+}
+
+/// One parameter of the kept draws.
+#[derive(Debug, Serialize)]
+struct KeptInterval {
+    name: String,
+    /// 5 % and 95 % quantiles of the kept draws (SI).
+    interval: [f64; 2],
+    /// `log10(high / low)`, for log parameters.
+    interval_decades: Option<f64>,
+}
+
+/// The `validation` block of the output's `summary.json`.
+#[derive(Debug, Serialize)]
+struct Validation {
+    /// The posterior folder whose draws were replayed.
+    posterior: PathBuf,
+    /// The loss a draw must not exceed to be kept.
+    epsilon_loss: f64,
+    /// Where that threshold came from.
+    epsilon_from: &'static str,
+    replayed: usize,
+    kept: usize,
+    diverged: usize,
+    /// Replayed loss of the kept draws: lowest and median.
+    kept_loss_min: Option<f64>,
+    kept_loss_median: Option<f64>,
+    /// Per parameter, the kept draws' 90 % interval (empty when none is kept).
+    parameters: Vec<KeptInterval>,
+}
+
+/// Runs `--validate`.
+pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
+    let summary_path = args.posterior.join(SUMMARY_FILE);
+    let samples_path = args.posterior.join(SAMPLES_FILE);
+    let summary_text = std::fs::read_to_string(&summary_path).map_err(|e| {
+        input_error(format!(
+            "{}: {e}; --validate needs the {SUMMARY_FILE} and {SAMPLES_FILE} of an `rlpkg \
+             posterior` folder",
+            summary_path.display()
+        ))
+    })?;
+    let mut summary: serde_json::Value = serde_json::from_str(&summary_text)
+        .map_err(|e| input_error(format!("{}: not JSON: {e}", summary_path.display())))?;
+    let (epsilon_loss, epsilon_from) = match args.epsilon_loss {
+        Some(loss) => (loss, "--epsilon-loss"),
+        None => {
+            let loss = summary["epsilon_loss"].as_f64().ok_or_else(|| {
+                input_error(format!(
+                    "{}: no `epsilon_loss` (the likelihood threshold `rlpkg posterior` records)",
+                    summary_path.display()
+                ))
+            })?;
+            (loss, "the posterior's epsilon_loss")
+        }
+    };
+    if !(epsilon_loss > 0.0 && epsilon_loss.is_finite()) {
+        return Err(input_error(format!(
+            "threshold {epsilon_loss} ({epsilon_from}): expected a finite loss > 0"
+        )));
+    }
+    let config = &args.config;
+    let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
+    let samples = read_samples(&samples_path, &names)?;
+    if samples.len() < args.draws {
+        return Err(input_error(format!(
+            "{}: {} draws; expected at least --validate {}",
+            samples_path.display(),
+            samples.len(),
+            args.draws
+        )));
+    }
+    let rows: Vec<usize> = (0..args.draws)
+        .map(|i| i * samples.len() / args.draws)
+        .collect();
+
+    let dataset = Dataset::open(&config.data).map_err(input_error)?;
+    let ids = config.trajectory_ids(&dataset).map_err(input_error)?;
+    let trajectories = ids
+        .iter()
+        .map(|id| dataset.load(id).map_err(input_error))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let scene = config.scene(args.config_path).map_err(input_error)?;
+    let mut objective = SimObjective::new(
+        &scene,
+        names.clone(),
+        &trajectories,
+        config.loss,
+        config.sim.max_seconds,
+    )
+    .map_err(input_error)?
+    .with_observer(Box::new(Interruptible));
+    println!(
+        "replaying {} of {} posterior draws on {} trajectories ({}), {} draws per batch",
+        rows.len(),
+        samples.len(),
+        ids.len(),
+        config
+            .sim
+            .max_seconds
+            .map_or("whole trajectories".to_string(), |s| format!(
+                "first {s} s of each"
+            )),
+        CHUNK
+    );
+    let _cooperation = crate::interrupt::Cooperation::start();
+    let mut results: Vec<CandidateResult> = Vec::with_capacity(rows.len());
+    for chunk in rows.chunks(CHUNK) {
+        let batch: Vec<Vec<f64>> = chunk.iter().map(|&r| samples[r].clone()).collect();
+        let replayed = objective.evaluate(&batch).map_err(anyhow::Error::msg)?;
+        if crate::interrupt::requested() {
+            anyhow::bail!("interrupted: nothing written");
+        }
+        results.extend(replayed);
+        let kept = results.iter().filter(|r| r.loss <= epsilon_loss).count();
+        println!(
+            "  {} of {} replayed, {kept} kept",
+            results.len(),
+            rows.len()
+        );
+    }
+
+    let kept: Vec<usize> = (0..rows.len())
+        .filter(|&i| results[i].loss <= epsilon_loss)
+        .collect();
+    let kept_draws: Vec<Vec<f64>> = kept.iter().map(|&i| samples[rows[i]].clone()).collect();
+    let mut kept_losses: Vec<f64> = kept.iter().map(|&i| results[i].loss).collect();
+    kept_losses.sort_by(f64::total_cmp);
+    let parameters = if kept_draws.is_empty() {
+        Vec::new()
+    } else {
+        config
+            .params
+            .iter()
+            .enumerate()
+            .map(|(k, p)| {
+                let mut values: Vec<f64> = kept_draws.iter().map(|d| d[k]).collect();
+                values.sort_by(f64::total_cmp);
+                let interval = [quantile(&values, 0.05), quantile(&values, 0.95)];
+                KeptInterval {
+                    name: p.name.clone(),
+                    interval,
+                    interval_decades: p.log.then(|| (interval[1] / interval[0]).log10()),
+                }
+            })
+            .collect()
+    };
+    let validation = Validation {
+        posterior: args.posterior.clone(),
+        epsilon_loss,
+        epsilon_from,
+        replayed: rows.len(),
+        kept: kept.len(),
+        diverged: results.iter().filter(|r| !r.loss.is_finite()).count(),
+        kept_loss_min: kept_losses.first().copied(),
+        kept_loss_median: (!kept_losses.is_empty()).then(|| quantile(&kept_losses, 0.5)),
+        parameters,
+    };
+    summary["validation"] = serde_json::to_value(&validation)?;
+
+    let mut samples_csv = names.join(",") + "\n";
+    for draw in &kept_draws {
+        samples_csv.push_str(&join(draw));
+        samples_csv.push('\n');
+    }
+    let mut replayed_csv = format!(
+        "row,{},loss,chamfer_m,object_mse_m2,kept\n",
+        names.join(",")
+    );
+    for (i, (&row, r)) in rows.iter().zip(&results).enumerate() {
+        replayed_csv.push_str(&format!(
+            "{row},{},{},{},{},{}\n",
+            join(&samples[row]),
+            r.loss,
+            r.chamfer_m,
+            r.object_mse_m2,
+            kept.binary_search(&i).is_ok()
+        ));
+    }
+    std::fs::create_dir_all(&args.out).map_err(|e| {
+        input_error(format!(
+            "{}: cannot create the output folder: {e}",
+            args.out.display()
+        ))
+    })?;
+    for (file, text) in OUTPUT_FILES.iter().zip([
+        samples_csv,
+        serde_json::to_string_pretty(&summary)?,
+        replayed_csv,
+    ]) {
+        write_atomic(&args.out.join(file), text.as_bytes()).map_err(output_error)?;
+    }
+    print_table(&validation, &summary, &args.out);
+    Ok(())
+}
+
+fn join(values: &[f64]) -> String {
+    values
+        .iter()
+        .map(|v| format!("{v:e}"))
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// The `q` quantile of sorted `values` (linear interpolation).
+fn quantile(values: &[f64], q: f64) -> f64 {
+    let position = q * (values.len() - 1) as f64;
+    let below = position.floor() as usize;
+    let above = (below + 1).min(values.len() - 1);
+    values[below] + (position - below as f64) * (values[above] - values[below])
+}
+
+fn print_table(v: &Validation, summary: &serde_json::Value, out: &Path) {
+    println!(
+        "kept {} of {} replayed draws ({:.1} %) with loss <= {:.4e} ({}); {} diverged",
+        v.kept,
+        v.replayed,
+        100.0 * v.kept as f64 / v.replayed as f64,
+        v.epsilon_loss,
+        v.epsilon_from,
+        v.diverged
+    );
+    if let (Some(min), Some(median)) = (v.kept_loss_min, v.kept_loss_median) {
+        println!("kept draws' loss: lowest {min:.4e}, median {median:.4e}");
+    }
+    if !v.parameters.is_empty() {
+        println!();
+        println!(
+            "{:<16} {:<25} {:>13}  {:<25} {:>13}",
+            "parameter", "surrogate 90 % interval", "width", "kept 90 % interval", "width"
+        );
+        let width = |decades: Option<f64>, interval: [f64; 2]| match decades {
+            Some(d) => format!("{d:.2} decades"),
+            None => format!("{:.3e}", interval[1] - interval[0]),
+        };
+        for (p, s) in v.parameters.iter().zip(
+            summary["parameters"]
+                .as_array()
+                .map(Vec::as_slice)
+                .unwrap_or(&[]),
+        ) {
+            let surrogate = [
+                s["interval"][0].as_f64().unwrap_or(f64::NAN),
+                s["interval"][1].as_f64().unwrap_or(f64::NAN),
+            ];
+            println!(
+                "{:<16} [{:>9.3e}, {:>9.3e}] {:>13}  [{:>9.3e}, {:>9.3e}] {:>13}",
+                p.name,
+                surrogate[0],
+                surrogate[1],
+                width(s["interval_decades"].as_f64(), surrogate),
+                p.interval[0],
+                p.interval[1],
+                width(p.interval_decades, p.interval),
+            );
+        }
+    }
+    println!("wrote {}/{{{}}}", out.display(), OUTPUT_FILES.join(", "));
+}
+
+/// Lets Ctrl-C stop the replay.
+struct Interruptible;
+
+impl rlpkg_calib::objective::Observer for Interruptible {
+    fn stop(&mut self) -> bool {
+        crate::interrupt::requested()
+    }
+}
