@@ -312,13 +312,12 @@ fn quick_preset(dir: &Path) -> PathBuf {
     path
 }
 
-#[test]
-fn eval_of_a_posterior_gives_the_posterior_predictive_table_1() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = small_dataset(dir.path(), 30, "test");
-    let preset = quick_preset(dir.path());
-    // The synthetic calibration's box on the quick scene and the small dataset.
-    let cfg = config(dir.path(), &BOX);
+/// The synthetic calibration's box on the quick scene and a 30-frame dataset in split `split`, with
+/// its posterior made: (dataset, preset, calibration config, calibration folder).
+fn quick_posterior(dir: &Path, split: &str) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
+    let data = small_dataset(dir, 30, split);
+    let preset = quick_preset(dir);
+    let cfg = config(dir, &BOX);
     let body = std::fs::read_to_string(&cfg)
         .unwrap()
         .replace("data/deformable-sim-real", data.to_str().unwrap())
@@ -327,11 +326,18 @@ fn eval_of_a_posterior_gives_the_posterior_predictive_table_1() {
             &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
         );
     std::fs::write(&cfg, body).unwrap();
-    let folder = calibration(dir.path(), 48);
+    let folder = calibration(dir, 48);
     let mut args = vec!["posterior", cfg.to_str().unwrap()];
     args.extend(QUICK);
     let out = rlpkg(&args, "2");
     assert!(out.status.success(), "{}", text(&out.stderr));
+    (data, preset, cfg, folder)
+}
+
+#[test]
+fn eval_of_a_posterior_gives_the_posterior_predictive_table_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, preset, cfg, folder) = quick_posterior(dir.path(), "test");
     let summary_path = folder.join("posterior").join("summary.json");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&summary_path).unwrap()).unwrap();
@@ -482,22 +488,7 @@ fn recover_prints_the_recovery_table() {
 #[test]
 fn validate_replays_draws_and_keeps_those_within_the_threshold() {
     let dir = tempfile::tempdir().unwrap();
-    let data = small_dataset(dir.path(), 30, "train");
-    let preset = quick_preset(dir.path());
-    let cfg = config(dir.path(), &BOX);
-    let body = std::fs::read_to_string(&cfg)
-        .unwrap()
-        .replace("data/deformable-sim-real", data.to_str().unwrap())
-        .replace(
-            "preset = \"reference\"",
-            &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
-        );
-    std::fs::write(&cfg, body).unwrap();
-    calibration(dir.path(), 48);
-    let mut args = vec!["posterior", cfg.to_str().unwrap()];
-    args.extend(QUICK);
-    let out = rlpkg(&args, "2");
-    assert!(out.status.success(), "{}", text(&out.stderr));
+    let (data, _, cfg, _) = quick_posterior(dir.path(), "train");
 
     let validate = |epsilon: &str, out: &Path, threads: &str| {
         let output = rlpkg(

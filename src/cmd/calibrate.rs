@@ -17,7 +17,7 @@ use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{self, CalibratedParams, Plan};
 use rlpkg_calib::fingerprint::{self, ObjectiveRecord};
 use rlpkg_calib::objective::{Observer, SimObjective};
-use rlpkg_mocap::Dataset;
+use rlpkg_mocap::{Dataset, Trajectory};
 use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
 
@@ -62,12 +62,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             args.config.display()
         )));
     }
-    let dataset = Dataset::open(&config.data).map_err(input_error)?;
-    let ids = config.trajectory_ids(&dataset).map_err(input_error)?;
-    let trajectories = ids
-        .iter()
-        .map(|id| dataset.load(id).map_err(input_error))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let (ids, trajectories) = training_trajectories(&config)?;
     let scene = config.scene(&args.config).map_err(input_error)?;
     check_bounds_in_scene(&config, &scene, &args.config)?;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
@@ -250,6 +245,20 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
 /// Removes what a calibration that stopped before logging its first batch wrote (the objective,
 /// the log's header, the folder when it made it): a start that failed or was interrupted leaves
 /// the output as it was. Best effort: what cannot be removed is a fresh start's, harmless.
+/// The ids and recordings a calibration fits: `trajectories` of `config`, or its dataset's
+/// training split.
+pub(crate) fn training_trajectories(
+    config: &CalibrateConfig,
+) -> anyhow::Result<(Vec<String>, Vec<Trajectory>)> {
+    let dataset = Dataset::open(&config.data).map_err(input_error)?;
+    let ids = config.trajectory_ids(&dataset).map_err(input_error)?;
+    let trajectories = ids
+        .iter()
+        .map(|id| dataset.load(id).map_err(input_error))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok((ids, trajectories))
+}
+
 fn remove_empty_start(out_dir: &Path, created_out_dir: bool) {
     let log = out_dir.join("evaluations.csv");
     let logged = match std::fs::read_to_string(&log) {

@@ -120,17 +120,7 @@ pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
     })?;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let samples = read_samples(&samples_path, &names)?;
-    if samples.len() < args.draws {
-        return Err(input_error(format!(
-            "{}: {} draws; expected at least --draws {}",
-            samples_path.display(),
-            samples.len(),
-            args.draws
-        )));
-    }
-    let rows: Vec<usize> = (0..args.draws)
-        .map(|i| i * samples.len() / args.draws)
-        .collect();
+    let rows = evenly_spaced(&samples_path, samples.len(), args.draws, "--draws")?;
     let scene = config.scene(&config_path).map_err(input_error)?;
     let base = Candidate::of_scene(&scene);
     let candidates = rows
@@ -253,6 +243,23 @@ pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
         print_table(&summary, &out);
     }
     Ok(())
+}
+
+/// `draws` rows evenly spaced through the `available` rows of `samples_path`, refused naming
+/// `flag` when there are fewer.
+pub fn evenly_spaced(
+    samples_path: &Path,
+    available: usize,
+    draws: usize,
+    flag: &str,
+) -> anyhow::Result<Vec<usize>> {
+    if available < draws {
+        return Err(input_error(format!(
+            "{}: {available} draws; expected at least {flag} {draws}",
+            samples_path.display()
+        )));
+    }
+    Ok((0..draws).map(|i| i * available / draws).collect())
 }
 
 /// `summary.json` and `samples.csv` of the posterior folder `given` names (either file).

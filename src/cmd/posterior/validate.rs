@@ -19,10 +19,10 @@ use std::path::{Path, PathBuf};
 use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{BatchObjective, CandidateResult};
 use rlpkg_calib::objective::SimObjective;
-use rlpkg_mocap::Dataset;
 use serde::Serialize;
 
-use super::predictive::{read_samples, SAMPLES_FILE, SUMMARY_FILE};
+use super::predictive::{evenly_spaced, read_samples, SAMPLES_FILE, SUMMARY_FILE};
+use crate::cmd::calibrate::training_trajectories;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 
@@ -113,24 +113,9 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     let config = &args.config;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let samples = read_samples(&samples_path, &names)?;
-    if samples.len() < args.draws {
-        return Err(input_error(format!(
-            "{}: {} draws; expected at least --validate {}",
-            samples_path.display(),
-            samples.len(),
-            args.draws
-        )));
-    }
-    let rows: Vec<usize> = (0..args.draws)
-        .map(|i| i * samples.len() / args.draws)
-        .collect();
+    let rows = evenly_spaced(&samples_path, samples.len(), args.draws, "--validate")?;
 
-    let dataset = Dataset::open(&config.data).map_err(input_error)?;
-    let ids = config.trajectory_ids(&dataset).map_err(input_error)?;
-    let trajectories = ids
-        .iter()
-        .map(|id| dataset.load(id).map_err(input_error))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let (ids, trajectories) = training_trajectories(config)?;
     let scene = config.scene(args.config_path).map_err(input_error)?;
     let mut objective = SimObjective::new(
         &scene,
