@@ -587,6 +587,57 @@ fn validate_replays_draws_and_keeps_those_within_the_threshold() {
     );
     assert!(eval.status.success(), "{}", text(&eval.stderr));
 
+    // The replays join the calibration's evaluations in a refitted posterior.
+    let replayed_csv = all.join("replayed.csv");
+    let refit = dir.path().join("refit");
+    let mut args = vec![
+        "posterior",
+        cfg.to_str().unwrap(),
+        "--replays",
+        replayed_csv.to_str().unwrap(),
+        "--out",
+        refit.to_str().unwrap(),
+    ];
+    args.extend(QUICK);
+    let out = rlpkg(&args, "2");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("with 6 replayed draws"),
+        "{}",
+        text(&out.stdout)
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(refit.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["evaluations"], 48 + 6);
+    assert_eq!(summary["replays"][0], replayed_csv.to_str().unwrap());
+    // A replay file of other parameters, or with a value outside the box, is refused by line.
+    let bad = dir.path().join("bad.csv");
+    let refused = |body: &str, expected: &[&str]| {
+        std::fs::write(&bad, body).unwrap();
+        let out = rlpkg(
+            &[
+                "posterior",
+                cfg.to_str().unwrap(),
+                "--replays",
+                bad.to_str().unwrap(),
+            ],
+            "1",
+        );
+        assert_eq!(out.status.code(), Some(2));
+        for e in expected {
+            assert!(text(&out.stderr).contains(e), "{e}: {}", text(&out.stderr));
+        }
+    };
+    refused("row,k_tri_e,loss\n0,1e3,0.1\n", &["bad.csv", "header"]);
+    let header = replayed.lines().next().unwrap();
+    refused(
+        &format!(
+            "{header}\n0,1e3,1e-3,0.5,0.1,0.05,0.001,true\n0,1e9,1e-3,0.5,0.1,0.05,0.001,true\n"
+        ),
+        &["bad.csv: line 3", "k_tri_e"],
+    );
+
     // A folder without a posterior is named, and nothing is written.
     let empty = dir.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();

@@ -87,6 +87,11 @@ pub struct PosteriorArgs {
     #[arg(long, value_name = "N", conflicts_with = "recover",
           value_parser = clap::value_parser!(u64).range(1..=validate::MAX_VALIDATE))]
     pub validate: Option<u64>,
+    /// Fit the surrogate to these `replayed.csv` files of earlier `--validate` runs as well as to
+    /// the calibration's evaluations (comma-separated): the replays, diverged ones included, tell
+    /// it where the simulator does not fit.
+    #[arg(long, value_delimiter = ',', value_name = "FILES", conflicts_with_all = ["recover", "validate"])]
+    pub replays: Vec<PathBuf>,
     /// Validation: the posterior folder [default: `posterior` in the calibration folder].
     #[arg(long, value_name = "DIR", requires = "validate")]
     pub posterior: Option<PathBuf>,
@@ -98,6 +103,8 @@ pub struct PosteriorArgs {
 struct SummaryFile<'a> {
     config: &'a Path,
     calibration: &'a Path,
+    /// `replayed.csv` files of `--validate` runs fitted beside the calibration's evaluations.
+    replays: &'a [PathBuf],
     #[serde(flatten)]
     summary: &'a PosteriorSummary,
 }
@@ -137,8 +144,17 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
         });
     }
     let log_path = calibration.join("evaluations.csv");
-    let evaluations = posterior::read_evaluations(&log_path, &space)
+    let mut evaluations = posterior::read_evaluations(&log_path, &space)
         .map_err(|e| input_error(format!("{e} (parameters of {})", args.config.display())))?;
+    for path in &args.replays {
+        let replayed = validate::read_replayed(path, &config)?;
+        println!(
+            "with {} replayed draws of {}",
+            replayed.len(),
+            path.display()
+        );
+        evaluations.extend(replayed);
+    }
     let result = posterior::infer(&space, &evaluations, &settings).map_err(|e| match e {
         PosteriorError::TooFew { .. } | PosteriorError::Setting(_) => {
             input_error(format!("{}: {e}", log_path.display()))
@@ -156,6 +172,7 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
     let summary = serde_json::to_string_pretty(&SummaryFile {
         config: &args.config,
         calibration: &calibration,
+        replays: &args.replays,
         summary: &result.summary,
     })?;
     for (file, text) in OUTPUT_FILES.iter().zip([

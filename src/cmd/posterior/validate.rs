@@ -19,6 +19,7 @@ use std::path::{Path, PathBuf};
 use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{BatchObjective, CandidateResult};
 use rlpkg_calib::objective::SimObjective;
+use rlpkg_calib::posterior::Evaluation;
 use serde::Serialize;
 
 use super::predictive::{evenly_spaced, read_samples, SAMPLES_FILE, SUMMARY_FILE};
@@ -199,10 +200,7 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
         samples_csv.push_str(&join(draw));
         samples_csv.push('\n');
     }
-    let mut replayed_csv = format!(
-        "row,{},loss,chamfer_m,object_mse_m2,kept\n",
-        names.join(",")
-    );
+    let mut replayed_csv = replayed_header(&names) + "\n";
     for (i, (&row, r)) in rows.iter().zip(&results).enumerate() {
         replayed_csv.push_str(&format!(
             "{row},{},{},{},{},{}\n",
@@ -228,6 +226,80 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     }
     print_table(&validation, &summary, &args.out);
     Ok(())
+}
+
+/// Largest `replayed.csv` read back (bytes), checked before reading.
+const MAX_REPLAYED_BYTES: u64 = 64 << 20;
+
+/// The header of `replayed.csv` for parameters `names`.
+fn replayed_header(names: &[String]) -> String {
+    format!("row,{},loss,chamfer_m,object_mse_m2,kept", names.join(","))
+}
+
+/// The draws of a `replayed.csv` as evaluations of `config`'s parameters (a diverged replay is a
+/// failed evaluation), so that `rlpkg posterior --replays` fits its surrogate to them as well.
+pub fn read_replayed(path: &Path, config: &CalibrateConfig) -> anyhow::Result<Vec<Evaluation>> {
+    let size = std::fs::metadata(path)
+        .map_err(|e| input_error(format!("{}: {e}", path.display())))?
+        .len();
+    if size > MAX_REPLAYED_BYTES {
+        return Err(input_error(format!(
+            "{}: {size} bytes; expected a replayed.csv of `rlpkg posterior --validate` (at most {} MiB)",
+            path.display(),
+            MAX_REPLAYED_BYTES >> 20
+        )));
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| input_error(format!("{}: {e}", path.display())))?;
+    let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
+    let header = replayed_header(&names);
+    let mut lines = text.lines();
+    let first = lines.next().unwrap_or("");
+    if first != header {
+        return Err(input_error(format!(
+            "{}: header `{first}`; expected `{header}` (a replayed.csv of `rlpkg posterior \
+             --validate` for the parameters of this config)",
+            path.display()
+        )));
+    }
+    lines
+        .enumerate()
+        .map(|(i, line)| {
+            let at = || format!("{}: line {}", path.display(), i + 2);
+            let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+            if cells.len() != names.len() + 5 {
+                return Err(input_error(format!(
+                    "{}: {} cells; expected {}",
+                    at(),
+                    cells.len(),
+                    names.len() + 5
+                )));
+            }
+            let mut params = Vec::with_capacity(names.len());
+            for (p, cell) in config.params.iter().zip(&cells[1..=names.len()]) {
+                match cell.parse::<f64>() {
+                    Ok(v) if (p.lower..=p.upper).contains(&v) => params.push(v),
+                    _ => {
+                        return Err(input_error(format!(
+                            "{}: {} = `{cell}`; expected a number within [{:e}, {:e}]",
+                            at(),
+                            p.name,
+                            p.lower,
+                            p.upper
+                        )))
+                    }
+                }
+            }
+            let loss = cells[names.len() + 1].parse::<f64>().map_err(|_| {
+                input_error(format!(
+                    "{}: loss = `{}`; expected a number (NaN or inf for a diverged replay)",
+                    at(),
+                    cells[names.len() + 1]
+                ))
+            })?;
+            Ok(Evaluation { params, loss })
+        })
+        .collect()
 }
 
 fn join(values: &[f64]) -> String {
