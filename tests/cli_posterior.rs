@@ -611,71 +611,48 @@ fn validate_replays_draws_and_keeps_those_within_the_threshold() {
             .unwrap();
     assert_eq!(summary["evaluations"], 48 + 6);
     assert_eq!(summary["replays"][0], replayed_csv.to_str().unwrap());
-    // A replay file of other parameters, or with a value outside the box, is refused by line.
-    let bad = dir.path().join("bad.csv");
-    let refused = |body: &str, expected: &[&str]| {
-        std::fs::write(&bad, body).unwrap();
-        let out = rlpkg(
-            &[
-                "posterior",
-                cfg.to_str().unwrap(),
-                "--replays",
-                bad.to_str().unwrap(),
-            ],
-            "1",
-        );
+    // Bad input exits with 2 naming the file and what was expected.
+    let refused = |args: &[&str], expected: &[&str]| {
+        let mut all = vec!["posterior", cfg.to_str().unwrap()];
+        all.extend_from_slice(args);
+        let out = rlpkg(&all, "1");
         assert_eq!(out.status.code(), Some(2));
         for e in expected {
             assert!(text(&out.stderr).contains(e), "{e}: {}", text(&out.stderr));
         }
     };
-    refused("row,k_tri_e,loss\n0,1e3,0.1\n", &["bad.csv", "header"]);
-    let header = replayed.lines().next().unwrap();
+    // A replay file of other parameters, or with a value outside the box, is refused by line.
+    let bad = dir.path().join("bad.csv");
+    std::fs::write(&bad, "row,k_tri_e,loss\n0,1e3,0.1\n").unwrap();
     refused(
-        &format!(
+        &["--replays", bad.to_str().unwrap()],
+        &["bad.csv", "header"],
+    );
+    let header = replayed.lines().next().unwrap();
+    std::fs::write(
+        &bad,
+        format!(
             "{header}\n0,1e3,1e-3,0.5,0.1,0.05,0.001,true\n0,1e9,1e-3,0.5,0.1,0.05,0.001,true\n"
         ),
+    )
+    .unwrap();
+    refused(
+        &["--replays", bad.to_str().unwrap()],
         &["bad.csv: line 3", "k_tri_e"],
     );
-
     // A folder without a posterior is named, and nothing is written.
     let empty = dir.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
-    let missing = rlpkg(
-        &[
-            "posterior",
-            cfg.to_str().unwrap(),
-            "--validate",
-            "2",
-            "--posterior",
-            empty.to_str().unwrap(),
-        ],
-        "1",
-    );
-    assert_eq!(missing.status.code(), Some(2));
-    assert!(
-        text(&missing.stderr).contains("summary.json"),
-        "{}",
-        text(&missing.stderr)
+    let empty_path = empty.to_str().unwrap();
+    refused(
+        &["--validate", "2", "--posterior", empty_path],
+        &["summary.json"],
     );
     assert!(!empty.join("validated").exists());
     // More draws than the posterior holds.
-    let too_many = rlpkg(
-        &[
-            "posterior",
-            cfg.to_str().unwrap(),
-            "--validate",
-            "1001",
-            "--out",
-            empty.to_str().unwrap(),
-        ],
-        "1",
-    );
-    assert_eq!(too_many.status.code(), Some(2));
-    assert!(
-        text(&too_many.stderr).contains("--validate 1001"),
-        "{}",
-        text(&too_many.stderr)
+    refused(
+        &["--validate", "1001", "--out", empty_path],
+        &["--validate 1001"],
     );
     assert_eq!(std::fs::read_dir(&empty).unwrap().count(), 0);
 }
