@@ -364,8 +364,8 @@ fn print_table(s: &PredictiveSummary, out: &Path) {
     println!("wrote {}/summary.json", out.display());
 }
 
-/// Lets Ctrl-C stop the replay.
-struct Interruptible;
+/// Lets Ctrl-C stop a replay.
+pub(super) struct Interruptible;
 
 impl Observer for Interruptible {
     fn stop(&mut self) -> bool {

@@ -22,7 +22,7 @@ use rlpkg_calib::objective::SimObjective;
 use rlpkg_calib::posterior::Evaluation;
 use serde::Serialize;
 
-use super::predictive::{evenly_spaced, read_samples, SAMPLES_FILE, SUMMARY_FILE};
+use super::predictive::{evenly_spaced, read_samples, Interruptible, SAMPLES_FILE, SUMMARY_FILE};
 use crate::cmd::calibrate::training_trajectories;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
@@ -364,13 +364,4 @@ fn print_table(v: &Validation, summary: &serde_json::Value, out: &Path) {
         }
     }
     println!("wrote {}/{{{}}}", out.display(), OUTPUT_FILES.join(", "));
-}
-
-/// Lets Ctrl-C stop the replay.
-struct Interruptible;
-
-impl rlpkg_calib::objective::Observer for Interruptible {
-    fn stop(&mut self) -> bool {
-        crate::interrupt::requested()
-    }
 }
