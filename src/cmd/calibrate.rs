@@ -242,9 +242,6 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Removes what a calibration that stopped before logging its first batch wrote (the objective,
-/// the log's header, the folder when it made it): a start that failed or was interrupted leaves
-/// the output as it was. Best effort: what cannot be removed is a fresh start's, harmless.
 /// The ids and recordings a calibration fits: `trajectories` of `config`, or its dataset's
 /// training split.
 pub(crate) fn training_trajectories(
@@ -259,6 +256,9 @@ pub(crate) fn training_trajectories(
     Ok((ids, trajectories))
 }
 
+/// Removes what a calibration that stopped before logging its first batch wrote (the objective,
+/// the log's header, the folder when it made it): a start that failed or was interrupted leaves
+/// the output as it was. Best effort: what cannot be removed is a fresh start's, harmless.
 fn remove_empty_start(out_dir: &Path, created_out_dir: bool) {
     let log = out_dir.join("evaluations.csv");
     let logged = match std::fs::read_to_string(&log) {

@@ -52,10 +52,10 @@ use serde::Serialize;
 mod summary;
 mod surrogate;
 
-pub use summary::{profiles_csv, samples_csv};
+pub use summary::{profiles_csv, quantile, samples_csv};
 pub use surrogate::log_normal_cdf;
 
-use summary::{profiles, quantile, summarise};
+use summary::{profiles, summarise};
 use surrogate::{starting_walkers, Surrogate};
 
 use crate::driver::METRIC_NAMES;

@@ -104,7 +104,7 @@ pub(super) fn coordinate_value(space: &ParamSpace, i: usize, u: f64) -> f64 {
 }
 
 /// The `q`-quantile of sorted values, interpolating linearly between order statistics.
-pub(super) fn quantile(sorted: &[f64], q: f64) -> f64 {
+pub fn quantile(sorted: &[f64], q: f64) -> f64 {
     let position = q * (sorted.len() - 1) as f64;
     let below = position.floor() as usize;
     let above = (below + 1).min(sorted.len() - 1);

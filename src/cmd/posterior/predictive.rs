@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use rlpkg_calib::config::CalibrateConfig;
+use rlpkg_calib::posterior::quantile;
 use rlpkg_mocap::{Dataset, Split};
 use rlpkg_replay::loss::{Table1Row, TrajectoryLoss};
 use rlpkg_replay::{rollout, set_param, Candidate, Observer, Target};
@@ -61,16 +62,10 @@ impl Band {
                 high: f64::NAN,
             };
         }
-        let q = |q: f64| {
-            let position = q * (values.len() - 1) as f64;
-            let below = position.floor() as usize;
-            let above = (below + 1).min(values.len() - 1);
-            values[below] + (position - below as f64) * (values[above] - values[below])
-        };
         Self {
-            median: q(0.5),
-            low: q(0.05),
-            high: q(0.95),
+            median: quantile(&values, 0.5),
+            low: quantile(&values, 0.05),
+            high: quantile(&values, 0.95),
         }
     }
 }

@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{BatchObjective, CandidateResult};
 use rlpkg_calib::objective::SimObjective;
-use rlpkg_calib::posterior::Evaluation;
+use rlpkg_calib::posterior::{quantile, samples_csv, Evaluation};
 use serde::Serialize;
 
 use super::predictive::{evenly_spaced, read_samples, Interruptible, SAMPLES_FILE, SUMMARY_FILE};
@@ -195,11 +195,6 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     };
     summary["validation"] = serde_json::to_value(&validation)?;
 
-    let mut samples_csv = names.join(",") + "\n";
-    for draw in &kept_draws {
-        samples_csv.push_str(&join(draw));
-        samples_csv.push('\n');
-    }
     let mut replayed_csv = replayed_header(&names) + "\n";
     for (i, (&row, r)) in rows.iter().zip(&results).enumerate() {
         replayed_csv.push_str(&format!(
@@ -218,7 +213,7 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
         ))
     })?;
     for (file, text) in OUTPUT_FILES.iter().zip([
-        samples_csv,
+        samples_csv(&config.space(), &kept_draws),
         serde_json::to_string_pretty(&summary)?,
         replayed_csv,
     ]) {
@@ -302,20 +297,13 @@ pub fn read_replayed(path: &Path, config: &CalibrateConfig) -> anyhow::Result<Ve
         .collect()
 }
 
+/// `values` as `samples_csv` writes a draw.
 fn join(values: &[f64]) -> String {
     values
         .iter()
-        .map(|v| format!("{v:e}"))
+        .map(f64::to_string)
         .collect::<Vec<_>>()
         .join(",")
-}
-
-/// The `q` quantile of sorted `values` (linear interpolation).
-fn quantile(values: &[f64], q: f64) -> f64 {
-    let position = q * (values.len() - 1) as f64;
-    let below = position.floor() as usize;
-    let above = (below + 1).min(values.len() - 1);
-    values[below] + (position - below as f64) * (values[above] - values[below])
 }
 
 fn print_table(v: &Validation, summary: &serde_json::Value, out: &Path) {
