@@ -11,6 +11,7 @@ use clap::Args;
 use rlpkg_agents::runners::{clean_leftovers, POLICY_FILE};
 use rlpkg_agents::{TrainedPolicy, Trainer};
 
+use crate::cmd::eval::replaced_packages_line;
 use crate::cmd::export::{export_policy, ExportOptions};
 use crate::error::{agent_error, input_error};
 use crate::overrides::Override;
@@ -60,10 +61,7 @@ fn report_reset(trainer: &Trainer) {
     let count = |name: &str| counts.iter().find(|(n, _)| n == name).map(|(_, c)| *c);
     if let (Some(settled), Some(replaced)) = (count("settled_variants"), count("replaced_variants"))
     {
-        println!(
-            "settled package variants: {settled}, {replaced} of them replaced by the \
-             unrandomised package (not sealed or frozen at the scene's step)"
-        );
+        println!("{}", replaced_packages_line(settled, replaced));
     }
 }
 

@@ -13,6 +13,8 @@ mod onnx;
 mod params;
 mod transport;
 
+pub(crate) use transport::replaced_packages_line;
+
 use std::path::PathBuf;
 
 use clap::Args;

@@ -441,11 +441,8 @@ fn evaluate(
          scripted xS = the recorded high-velocity path played S times as fast\n",
         report.run, episodes, seed
     );
-    text += &format!(
-        "settled packages: {}, {} of them replaced by the unrandomised package (not sealed or \
-         frozen at the scene's step)\n",
-        report.settled_packages, report.replaced_packages
-    );
+    text += &replaced_packages_line(report.settled_packages, report.replaced_packages);
+    text.push('\n');
     if let Some(p) = &report.profile {
         let l = &p.base_limits;
         text += &format!(
@@ -693,4 +690,14 @@ fn render_beside_medium(
     gif.finish()
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
+}
+
+/// The line `rlpkg train` and `rlpkg eval` print after a reset: how many of the settled randomised
+/// packages were replaced by the unrandomised one (draws the scene's solver cannot carry at its
+/// step).
+pub(crate) fn replaced_packages_line(settled: usize, replaced: usize) -> String {
+    format!(
+        "settled packages: {settled}, {replaced} of them replaced by the unrandomised package (not \
+         sealed or frozen at the scene's step)"
+    )
 }
