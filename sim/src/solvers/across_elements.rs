@@ -3,7 +3,8 @@
 //! element's arithmetic is the same as in the per-environment path and results are added in the
 //! same element order, so both paths give bit-identical results.
 
-use crate::math::{get3, set3, Lanes, V3};
+use crate::math::{get3, set3, Lanes, Real, V3};
+use crate::model::Triangle;
 
 /// Elements processed together by the single-environment paths (SIMD across elements).
 pub(crate) const ELEMENT_LANES: usize = 8;
@@ -30,4 +31,22 @@ pub(crate) fn gather_elements<const W: usize, const N: usize>(
         }
     }
     (xs, vs)
+}
+
+/// The rest shapes `Dm` and `1 / A0` of the triangles of `chunk` (at most [`ELEMENT_LANES`]),
+/// triangle `e` in lane `e`; lanes past the last repeat it, as in [`gather_elements`].
+#[inline(always)]
+pub(crate) fn gather_triangle_rest(chunk: &[Triangle]) -> ([[E8; 2]; 2], E8) {
+    let mut dm = [[E8::splat(0.0); 2]; 2];
+    let mut inv_area = E8::splat(1.0);
+    for e in 0..ELEMENT_LANES {
+        let tri = &chunk[e.min(chunk.len() - 1)];
+        for (r, row) in tri.rest.dm.iter().enumerate() {
+            for (c, value) in row.iter().enumerate() {
+                dm[r][c].0[e] = *value;
+            }
+        }
+        inv_area.0[e] = tri.rest.inv_rest_area();
+    }
+    (dm, inv_area)
 }

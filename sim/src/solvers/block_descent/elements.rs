@@ -1,14 +1,15 @@
 //! The film's elements around a vertex for the block-descent solver: membrane triangles (per
-//! vertex, at the current iterate) and bending (per element, at the start of each sweep), per
+//! vertex, at the current iterate; per element for a global step's residual) and bending (per
+//! element, at the start of each sweep), per
 //! environment across lanes or, for a single-environment block, [`ELEMENT_LANES`] elements
 //! side by side (see [`crate::solvers::across_elements`]).
 
 use crate::forces::bending_element;
 use crate::math::{Lanes, Real, Sym3, V3};
 use crate::model::Model;
-use crate::solvers::across_elements::{gather_elements, E8, ELEMENT_LANES};
+use crate::solvers::across_elements::{gather_elements, gather_triangle_rest, E8, ELEMENT_LANES};
 
-use super::vertex::{triangle_vertex, LaneCorners, Membrane};
+use super::vertex::{triangle_forces, triangle_vertex, LaneCorners, Membrane};
 use super::BlockDescent;
 
 type L<const W: usize> = Lanes<W>;
@@ -117,6 +118,65 @@ impl<const W: usize> BlockDescent<W> {
             for e in 0..chunk.len() {
                 *force += lane_vector(&f, e);
                 stiff.add_assign(lane_matrix(&kk, e));
+            }
+        }
+    }
+
+    /// Membrane forces on every package vertex at positions `x` (velocities from the current
+    /// iterate), into `out`: each triangle once, forces only (a global step's residual).
+    #[inline(always)]
+    pub(super) fn membrane_forces(
+        &self,
+        model: &Model,
+        x: &[V3<L<W>>],
+        membrane: Membrane<L<W>>,
+        out: &mut [V3<L<W>>],
+    ) {
+        out.fill(V3::zero());
+        if W == 1 {
+            return self.membrane_forces_across_elements(model, x, membrane, out);
+        }
+        for tri in &model.package_triangles {
+            let [a, b, c] = tri.idx.map(|j| j as usize);
+            let inv_area = tri.rest.inv_rest_area();
+            let forces = triangle_forces(
+                [x[a], x[b], x[c]],
+                [self.x_rate[a], self.x_rate[b], self.x_rate[c]],
+                tri.rest.dm.map(|row| row.map(L::splat)),
+                (L::splat(1.0 / inv_area), L::splat(inv_area)),
+                membrane,
+            );
+            out[a] += forces[0];
+            out[b] += forces[1];
+            out[c] += forces[2];
+        }
+    }
+
+    /// [`Self::membrane_forces`] for a single-environment block: [`ELEMENT_LANES`] triangles side
+    /// by side, added in triangle order.
+    #[inline(always)]
+    fn membrane_forces_across_elements(
+        &self,
+        model: &Model,
+        x: &[V3<L<W>>],
+        membrane: Membrane<L<W>>,
+        out: &mut [V3<L<W>>],
+    ) {
+        let membrane = Membrane {
+            mu: E8::splat(membrane.mu.0[0]),
+            lambda: E8::splat(membrane.lambda.0[0]),
+            damp: E8::splat(membrane.damp.0[0]),
+            alpha: E8::splat(membrane.alpha.0[0]),
+        };
+        for chunk in model.package_triangles.chunks(ELEMENT_LANES) {
+            let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, x, &self.x_rate);
+            let (dm, inv_area) = gather_triangle_rest(chunk);
+            let area = E8::splat(1.0) / inv_area;
+            let forces = triangle_forces(xs, vs, dm, (area, inv_area), membrane);
+            for (e, tri) in chunk.iter().enumerate() {
+                for (corner, &j) in tri.idx.iter().enumerate() {
+                    out[j as usize] += lane_vector(&forces[corner], e);
+                }
             }
         }
     }

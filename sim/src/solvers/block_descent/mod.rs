@@ -157,17 +157,57 @@ impl<const W: usize> BlockDescent<W> {
         state: &State<W>,
         i: usize,
     ) -> (V3<L<W>>, Sym3<L<W>>) {
+        let xi = state.x[i];
+        let mut force = (self.inertia_target[i] - xi) * terms.inertial;
+        let mut stiff = Sym3::diagonal(terms.inertial);
+        self.add_membrane(
+            terms.model,
+            &state.x,
+            i,
+            terms.membrane,
+            terms.inv_h,
+            &mut force,
+            &mut stiff,
+        );
+        self.add_vertex_terms(terms, state, i, &mut force, &mut stiff);
+        (force, stiff)
+    }
+
+    /// The force on package vertex `i` at the current iterate without the membrane's (which
+    /// [`Self::membrane_forces`] gives per element): inertia, bending, springs and contacts.
+    #[inline(always)]
+    fn force_without_membrane(
+        &self,
+        terms: &VertexTerms<'_, W>,
+        state: &State<W>,
+        i: usize,
+    ) -> V3<L<W>> {
+        let mut force = (self.inertia_target[i] - state.x[i]) * terms.inertial;
+        self.add_vertex_terms(terms, state, i, &mut force, &mut Sym3::zero());
+        force
+    }
+
+    /// Adds the terms of package vertex `i` that act on it alone to `force` and `stiff`: bending
+    /// (from the sweep's start), the attachment springs and the contacts.
+    #[inline(always)]
+    fn add_vertex_terms(
+        &self,
+        terms: &VertexTerms<'_, W>,
+        state: &State<W>,
+        i: usize,
+        force: &mut V3<L<W>>,
+        stiff: &mut Sym3<L<W>>,
+    ) {
         let VertexTerms {
             model,
             p,
-            membrane,
-            inertial,
             inv_h,
             ground,
             rad,
             reach2,
             disc: (com, q),
             disc_velocity: (disc_v, disc_w),
+            ..
         } = *terms;
         let zero = L::<W>::splat(0.0);
         let half = L::<W>::splat(0.5);
@@ -176,12 +216,9 @@ impl<const W: usize> BlockDescent<W> {
         let cup_start = model.cup_start();
         let xi = state.x[i];
         let vi = self.x_rate[i];
-        let mut force = (self.inertia_target[i] - xi) * inertial;
-        let mut stiff = Sym3::diagonal(inertial);
-        self.add_membrane(model, &state.x, i, membrane, inv_h, &mut force, &mut stiff);
         // Bending, evaluated at the start of the sweep (it is soft: lagging it costs
         // little convergence and saves three of its four evaluations).
-        force += self.bend_force[i];
+        *force += self.bend_force[i];
         stiff.add_assign(self.bend_stiffness[i]);
         let slots = self.spring_slot_starts[i] as usize..self.spring_slot_starts[i + 1] as usize;
         for slot in &self.spring_slots[slots] {
@@ -204,15 +241,15 @@ impl<const W: usize> BlockDescent<W> {
             // Lanes without this slot, and lip elements that let go, pull with nothing.
             let (ke, kd) = (p.spring[0] * on, p.spring[1] * on);
             let (f, kk) = spring_vertex(xi, anchor, vi, anchor_v, rest, ke, kd, inv_h);
-            force += V3::select_lt(half, on, f, V3::zero());
+            *force += V3::select_lt(half, on, f, V3::zero());
             stiff.add_assign(kk.keep_lt(half, on));
         }
         // Contacts only change the lanes that touch (see the module docs of `solvers`).
         if xi.y.0.iter().any(|&y| y < radius) {
             let gap = xi.y - rad;
             let (f, kk) = contact_vertex(gap, up, vi, ground, inv_h);
-            force = V3::select_lt(gap, zero, force + f, force);
-            stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), stiff);
+            *force = V3::select_lt(gap, zero, *force + f, *force);
+            *stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), *stiff);
         }
         if self.near_disc[i] {
             let (gap, f, kk, _) = self.disc_contact(
@@ -227,10 +264,9 @@ impl<const W: usize> BlockDescent<W> {
                 reach2,
                 inv_h,
             );
-            force = V3::select_lt(gap, zero, force + f, force);
-            stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), stiff);
+            *force = V3::select_lt(gap, zero, *force + f, *force);
+            *stiff = Sym3::select_lt(gap, zero, stiff.plus(kk), *stiff);
         }
-        (force, stiff)
     }
 }
 
@@ -416,8 +452,9 @@ impl<const W: usize> BlockDescent<W> {
 
             // A composite solver's global step, from the residual forces at the sweep's start.
             if let Some(residual) = global.residual() {
+                self.membrane_forces(model, &state.x, membrane, residual);
                 for (i, r) in residual.iter_mut().enumerate() {
-                    *r = self.vertex_system(&terms, state, i).0;
+                    *r += self.force_without_membrane(&terms, state, i);
                 }
             }
             global.solve();

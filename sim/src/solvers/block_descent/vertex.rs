@@ -112,20 +112,26 @@ impl<T: Real> Membrane<T> {
     }
 }
 
-/// Membrane triangle (Warp's energy `A0·[μ/2·tr(FᵀF) + λ/2·(J − α)²]`, α = 1 + μ/λ, `J` the area
-/// ratio) at corner `corner` of positions `x`, velocities `v`; `rest_area` = (A0, 1/A0). The
-/// stiffness is exact for the deviatoric part and Gauss-Newton (`A0·λ·∇J∇Jᵀ`) for the area part.
+/// What a membrane triangle's forces on its corners are made of: `P = ∂E/∂F` (columns `p1`,
+/// `p2`), the gradients of the area ratio at corners 1 and 2, and the area term's scalar factor.
+struct TriangleStress<T> {
+    p1: V3<T>,
+    p2: V3<T>,
+    dcdq: V3<T>,
+    dcdr: V3<T>,
+    area_factor: T,
+}
+
+/// The stress of a membrane triangle (see [`triangle_vertex`]) at positions `x`, velocities `v`,
+/// with the material scaled by `rest_area` = A0.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub fn triangle_vertex<T: Real>(
+fn triangle_stress<T: Real>(
     x: [V3<T>; 3],
     v: [V3<T>; 3],
-    corner: impl Corner<T>,
     dm: [[T; 2]; 2],
     rest_area: (T, T),
     mat: Membrane<T>,
-    inv_h: T,
-) -> (V3<T>, Sym3<T>) {
+) -> TriangleStress<T> {
     let (rest_area, inv_rest_area) = rest_area;
     let (k_mu, k_lambda, k_damp) = (
         mat.mu * rest_area,
@@ -147,9 +153,6 @@ pub fn triangle_vertex<T: Real>(
     let e12 = (f1.dot(g2) + f2.dot(g1)) * half;
     let p1 = f1 * k_mu + (f1 * e11 + f2 * e12) * k_damp;
     let p2 = f2 * k_mu + (f1 * e12 + f2 * e22) * k_damp;
-    let w = corner.weights(dm);
-    // dE/dx_k = P·w_k (P = ∂E/∂F, columns p1, p2).
-    let mut grad = p1 * w[0] + p2 * w[1];
 
     let n = x10.cross(x20);
     let n_len = n.length();
@@ -159,13 +162,61 @@ pub fn triangle_vertex<T: Real>(
     let dcdq = x20.cross(n) * half_inv;
     let dcdr = n.cross(x10) * half_inv;
     let dcdt = dcdq.dot(v[1]) + dcdr.dot(v[2]) - (dcdq + dcdr).dot(v[0]);
-    let dj = corner.area_gradient(dcdq, dcdr);
-    grad += dj * (k_lambda * c + k_damp * dcdt);
+    TriangleStress {
+        p1,
+        p2,
+        dcdq,
+        dcdr,
+        area_factor: k_lambda * c + k_damp * dcdt,
+    }
+}
 
+/// Membrane triangle (Warp's energy `A0·[μ/2·tr(FᵀF) + λ/2·(J − α)²]`, α = 1 + μ/λ, `J` the area
+/// ratio) at corner `corner` of positions `x`, velocities `v`; `rest_area` = (A0, 1/A0). The
+/// stiffness is exact for the deviatoric part and Gauss-Newton (`A0·λ·∇J∇Jᵀ`) for the area part.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn triangle_vertex<T: Real>(
+    x: [V3<T>; 3],
+    v: [V3<T>; 3],
+    corner: impl Corner<T>,
+    dm: [[T; 2]; 2],
+    rest_area: (T, T),
+    mat: Membrane<T>,
+    inv_h: T,
+) -> (V3<T>, Sym3<T>) {
+    let s = triangle_stress(x, v, dm, rest_area, mat);
+    let w = corner.weights(dm);
+    // dE/dx_k = P·w_k (P = ∂E/∂F, columns p1, p2).
+    let mut grad = s.p1 * w[0] + s.p2 * w[1];
+    let dj = corner.area_gradient(s.dcdq, s.dcdr);
+    grad += dj * s.area_factor;
+
+    let (k_mu, k_lambda, k_damp) = (
+        mat.mu * rest_area.0,
+        mat.lambda * rest_area.0,
+        mat.damp * rest_area.0,
+    );
     let ww = w[0] * w[0] + w[1] * w[1];
     let mut k = Sym3::diagonal(ww * (k_mu + k_damp * inv_h));
     k.add_assign(Sym3::outer(dj, k_lambda + k_damp * inv_h));
     (-grad, k)
+}
+
+/// The forces of [`triangle_vertex`] on all three corners at once, without stiffness: what a
+/// residual needs, each triangle evaluated once instead of once per corner.
+#[inline(always)]
+pub fn triangle_forces<T: Real>(
+    x: [V3<T>; 3],
+    v: [V3<T>; 3],
+    dm: [[T; 2]; 2],
+    rest_area: (T, T),
+    mat: Membrane<T>,
+) -> [V3<T>; 3] {
+    let s = triangle_stress(x, v, dm, rest_area, mat);
+    let grad1 = s.p1 * dm[0][0] + s.p2 * dm[0][1] + s.dcdq * s.area_factor;
+    let grad2 = s.p1 * dm[1][0] + s.p2 * dm[1][1] + s.dcdr * s.area_factor;
+    [grad1 + grad2, -grad1, -grad2]
 }
 
 /// Damped spring between a free vertex `x` and a fixed point `anchor` (the attachment springs;
@@ -509,6 +560,27 @@ mod tests {
         );
         assert_vec_close(f, warp, 1e-12);
         assert_psd(&k);
+    }
+
+    #[test]
+    fn triangle_forces_are_the_three_corners_forces_and_sum_to_zero() {
+        let base = rest_triangle();
+        let x = [
+            base[0],
+            base[1] + v([0.004, -0.002, 0.001]),
+            base[2] + v([-0.003, 0.005, 0.0]),
+        ];
+        let vel = [v([0.1, 0.0, -0.2]), v([0.0, 0.3, 0.1]), v([-0.2, 0.1, 0.0])];
+        let mat = [2.0e3, 3.0e3, 0.5];
+        let inv_area = (DM[0][0] * DM[1][1] - DM[0][1] * DM[1][0]) * 2.0;
+        let all = triangle_forces(x, vel, DM, (1.0 / inv_area, inv_area), Membrane::new(mat));
+        let mut sum = V3::zero();
+        for (corner, f) in all.into_iter().enumerate() {
+            let (fc, _) = test_triangle(x, vel, corner, mat);
+            assert_vec_close(f, fc, 1e-12);
+            sum += f;
+        }
+        assert!(sum.length() < 1e-9 * all[0].length(), "{sum:?}");
     }
 
     #[test]

@@ -7,7 +7,7 @@ use crate::constants::StepConstants;
 use crate::forces::{self, ContactMaterial};
 use crate::math::{get3, set3, Lanes, Real, V3};
 use crate::model::{BendingEdge, Model, Triangle};
-use crate::solvers::across_elements::{gather_elements, E8, ELEMENT_LANES};
+use crate::solvers::across_elements::{gather_elements, gather_triangle_rest, E8, ELEMENT_LANES};
 use crate::state::{LaneDisc, LaneParams, LaneSpring};
 
 type L<const W: usize> = Lanes<W>;
@@ -231,17 +231,7 @@ fn triangles_across_elements<const W: usize>(
     let mat = mat.map(E8::splat);
     for chunk in tris.chunks(ELEMENT_LANES) {
         let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, x, v);
-        let mut dm = [[E8::splat(0.0); 2]; 2];
-        let mut inv_area = E8::splat(1.0);
-        for e in 0..ELEMENT_LANES {
-            let tri = &chunk[e.min(chunk.len() - 1)];
-            for (r, row) in tri.rest.dm.iter().enumerate() {
-                for (c, value) in row.iter().enumerate() {
-                    dm[r][c].0[e] = *value;
-                }
-            }
-            inv_area.0[e] = tri.rest.inv_rest_area();
-        }
+        let (dm, inv_area) = gather_triangle_rest(chunk);
         let fs = forces::triangle(xs, vs, dm, inv_area, mat[0], mat[1], mat[2]);
         for (e, tri) in chunk.iter().enumerate() {
             for (corner, &i) in tri.idx.iter().enumerate() {

@@ -10,7 +10,8 @@
 //!
 //! Method (a two-level solver of the same incremental potential as [`super::block_descent`], so
 //! the same force laws and the same solution): before each sweep, the residual force `r` of every
-//! package vertex (inertia, membrane, bending, attachment springs, contacts) is turned into a
+//! package vertex (inertia, membrane, bending, attachment springs, contacts; the membrane's per
+//! triangle, each once and without stiffness, a fraction of a sweep's cost) is turned into a
 //! displacement `Δx = P⁻¹·r` by one matrix `P` for the whole sheet, then block descent's sweep
 //! and disc step follow. `P` is the projective-dynamics system matrix (Bouaziz et al. 2014):
 //! `m/h²·I + (k_mu + k_lambda + k_damp/h)·L` with `L` the membrane's rest Laplacian (the exact
