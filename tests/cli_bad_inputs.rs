@@ -572,7 +572,7 @@ fn cases() -> Vec<Case> {
                 shipped_config(
                     dir,
                     "transport-posterior.toml",
-                    "posterior = \"runs/calibrate-coarse-soft-film/posterior-refit/validated\"",
+                    "posterior = \"data/posteriors/coarse-soft-film\"",
                     "posterior = \"posterior/samples.csv\"",
                 );
                 std::fs::create_dir(dir.join("posterior")).unwrap();

@@ -122,7 +122,8 @@ pub fn tiny_training(name: &str, total_steps: u64, time_limit_s: &str) -> String
             "time_limit_s = 12.0",
             &format!("time_limit_s = {time_limit_s}"),
         )
-        .replace("settled_variants = 16", "settled_variants = 1")
+        .replace("settled_variants = 16 ", "settled_variants = 1 ")
+        .replace("settled_variants = 128 ", "settled_variants = 1 ")
         .replace("settle_s = 0.5", "settle_s = 0.1");
     for expected in [
         format!("total_steps = {total_steps}"),
