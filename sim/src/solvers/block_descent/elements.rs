@@ -35,6 +35,17 @@ fn lane_matrix<const W: usize>(m: &Sym3<E8>, e: usize) -> Sym3<L<W>> {
     }
 }
 
+/// Lane 0's membrane material in every lane of [`E8`] (the single-environment paths).
+#[inline(always)]
+fn lane0_membrane<const W: usize>(m: Membrane<L<W>>) -> Membrane<E8> {
+    Membrane {
+        mu: E8::splat(m.mu.0[0]),
+        lambda: E8::splat(m.lambda.0[0]),
+        damp: E8::splat(m.damp.0[0]),
+        alpha: E8::splat(m.alpha.0[0]),
+    }
+}
+
 impl<const W: usize> BlockDescent<W> {
     /// Adds the membrane force and stiffness of package vertex `i` to `force` and `stiff`, one
     /// triangle at a time in adjacency order.
@@ -88,12 +99,7 @@ impl<const W: usize> BlockDescent<W> {
         force: &mut V3<L<W>>,
         stiff: &mut Sym3<L<W>>,
     ) {
-        let membrane = Membrane {
-            mu: E8::splat(membrane.mu.0[0]),
-            lambda: E8::splat(membrane.lambda.0[0]),
-            damp: E8::splat(membrane.damp.0[0]),
-            alpha: E8::splat(membrane.alpha.0[0]),
-        };
+        let membrane = lane0_membrane(membrane);
         let inv_h = E8::splat(inv_h.0[0]);
         for chunk in model.adjacency.triangles_of(i).chunks(ELEMENT_LANES) {
             let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, x, &self.x_rate);
@@ -162,12 +168,7 @@ impl<const W: usize> BlockDescent<W> {
         membrane: Membrane<L<W>>,
         out: &mut [V3<L<W>>],
     ) {
-        let membrane = Membrane {
-            mu: E8::splat(membrane.mu.0[0]),
-            lambda: E8::splat(membrane.lambda.0[0]),
-            damp: E8::splat(membrane.damp.0[0]),
-            alpha: E8::splat(membrane.alpha.0[0]),
-        };
+        let membrane = lane0_membrane(membrane);
         for chunk in model.package_triangles.chunks(ELEMENT_LANES) {
             let (xs, vs) = gather_elements(chunk.len(), |e| chunk[e].idx, x, &self.x_rate);
             let (dm, inv_area) = gather_triangle_rest(chunk);
