@@ -174,6 +174,24 @@ fn profile_rows_join_the_table_and_bad_scales_are_refused() {
         ["policy", "scripted x1", "profile x0.5", "profile x1"]
     );
     assert_eq!(report["rows"][2]["episodes"], 2);
+    // episodes.csv: each driver's episodes, their endings adding up to the table's shares.
+    let csv = std::fs::read_to_string(dir.path().join(run).join("eval/episodes.csv")).unwrap();
+    let lines: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    assert_eq!(lines.len(), 1 + drivers.len() * 2, "{csv}");
+    let ending = lines[0].iter().position(|&c| c == "ending").unwrap();
+    for (k, driver) in drivers.iter().enumerate() {
+        let mine: Vec<&Vec<&str>> = lines[1..]
+            .iter()
+            .filter(|l| l[0] == format!("{driver:?}"))
+            .collect();
+        assert_eq!(mine.len(), 2, "{driver}\n{csv}");
+        let placed = mine.iter().filter(|l| l[ending] == "success").count();
+        assert_eq!(
+            report["rows"][k]["success_pct"].as_f64().unwrap(),
+            50.0 * placed as f64,
+            "{driver}\n{csv}"
+        );
+    }
     // Scale 1 stands for the tool's own limits of [transport.limits].
     let limits = &report["profile"]["base_limits"];
     assert_eq!(limits["speed_m_s"], 0.945, "{report}");

@@ -7,6 +7,7 @@ use serde::Serialize;
 use super::geometry::{quat, v3};
 use super::{info_names, Transport};
 use crate::{EnvError, VecEnv};
+use rlpkg_sim::config::PARAM_NAMES;
 
 /// How an episode ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -22,6 +23,19 @@ pub enum Ending {
     Unhealthy,
     /// The time limit came first.
     TimedOut,
+}
+
+impl Ending {
+    /// The ending as `summary.json` and `episodes.csv` name it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Ending::Success => "success",
+            Ending::CupDetached => "cup_detached",
+            Ending::Dropped => "dropped",
+            Ending::Unhealthy => "unhealthy",
+            Ending::TimedOut => "timed_out",
+        }
+    }
 }
 
 /// One episode's outcome.
@@ -288,6 +302,61 @@ impl OutcomeSummary {
     }
 }
 
+/// An evaluation's `episodes.csv`: one row per driver and episode, with what the episode drew
+/// (settled package, path, target tilt, object mass, supply vacuum, every material parameter of
+/// the package) beside how it ended, so that failures can be traced to the packages and
+/// conditions behind them.
+#[derive(Debug, Clone)]
+pub struct EpisodeTable {
+    csv: String,
+}
+
+impl Default for EpisodeTable {
+    fn default() -> Self {
+        let params = PARAM_NAMES.join(",");
+        Self {
+            csv: format!(
+                "driver,episode,package,path,target_tilt_deg,object_mass_kg,vacuum_kpa,{params},\
+                 ending,time_s,object_motion_m,peak_seal_utilisation\n"
+            ),
+        }
+    }
+}
+
+impl EpisodeTable {
+    /// Appends `driver`'s `outcomes` as [`run_traced_episodes`] returned them on `env` (episode
+    /// `i` ran in copy `i`; call before `env` is reset again, which draws new episodes).
+    pub fn add(&mut self, driver: &str, env: &Transport, outcomes: &[EpisodeOutcome]) {
+        let scene_vacuum = env.model.config.seal.vacuum_kpa;
+        for (episode, o) in outcomes.iter().enumerate() {
+            let drawn = env.conditions(episode);
+            let spec = env.sim.spec(episode);
+            let params = spec
+                .params
+                .entries()
+                .map(|(_, value, ..)| value.to_string());
+            self.csv += &format!(
+                "{driver:?},{episode},{},{},{:.3},{},{},{},{},{:.4},{:.6},{:.6}\n",
+                o.package,
+                drawn.path_id,
+                drawn.target_tilt_rad.to_degrees(),
+                drawn.object_mass_kg,
+                spec.vacuum_kpa.unwrap_or(scene_vacuum),
+                params.join(","),
+                o.ending.name(),
+                o.time_s,
+                o.object_motion_m,
+                o.peak_seal_utilisation,
+            );
+        }
+    }
+
+    /// The table as CSV text (header first).
+    pub fn csv(&self) -> &str {
+        &self.csv
+    }
+}
+
 /// The `q` quantile of sorted `xs` (nearest rank), `None` when empty.
 fn percentile(xs: &[f64], q: f64) -> Option<f64> {
     if xs.is_empty() {
@@ -399,5 +468,29 @@ mod tests {
         let summary = OutcomeSummary::of("still", &outcomes);
         assert_eq!(summary.timed_out_pct, 100.0);
         assert_eq!(summary.time_to_place_mean_s, None);
+
+        // episodes.csv: a header, then each copy's draw and ending in its own row.
+        let mut table = EpisodeTable::default();
+        table.add("still", &t, &outcomes);
+        let rows: Vec<Vec<&str>> = table
+            .csv()
+            .lines()
+            .map(|l| l.split(',').collect())
+            .collect();
+        assert_eq!(rows.len(), 1 + outcomes.len());
+        let column = |name: &str| rows[0].iter().position(|&c| c == name).unwrap();
+        for (copy, row) in rows[1..].iter().enumerate() {
+            assert_eq!(row.len(), rows[0].len(), "{row:?}");
+            let drawn = t.conditions(copy);
+            assert_eq!(row[column("driver")], "\"still\"");
+            assert_eq!(row[column("episode")], copy.to_string());
+            assert_eq!(row[column("package")], drawn.variant.to_string());
+            assert_eq!(row[column("path")], drawn.path_id);
+            let mass: f32 = row[column("object_mass_kg")].parse().unwrap();
+            assert_eq!(mass, drawn.object_mass_kg);
+            let k_spr_e: f32 = row[column("k_spr_e")].parse().unwrap();
+            assert_eq!(k_spr_e, t.simulator().spec(copy).params.k_spr_e);
+            assert_eq!(row[column("ending")], "timed_out");
+        }
     }
 }

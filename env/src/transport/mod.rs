@@ -78,7 +78,8 @@ pub use config::{
 pub use control::TiltSchedule;
 pub use episode::EpisodeConditions;
 pub use evaluate::{
-    run_episodes, run_traced_episodes, Ending, EpisodeOutcome, OutcomeSummary, TracePoint,
+    run_episodes, run_traced_episodes, Ending, EpisodeOutcome, EpisodeTable, OutcomeSummary,
+    TracePoint,
 };
 pub use mpc::{HorizonSearch, RecedingHorizon};
 pub use observe::{

@@ -12,9 +12,9 @@ use anyhow::Context;
 use rlpkg_agents::export::OnnxPolicy;
 use rlpkg_agents::TrainedPolicy;
 use rlpkg_env::transport::{
-    load_paths, load_scene, recorded_timings, run_traced_episodes, CommandLibrary, KnotCurve,
-    MotionLimits, OutcomeSummary, PathProfile, TiltSchedule, TracePoint, TransportConfig,
-    TransportPath,
+    load_paths, load_scene, recorded_timings, run_traced_episodes, CommandLibrary, EpisodeTable,
+    KnotCurve, MotionLimits, OutcomeSummary, PathProfile, TiltSchedule, TracePoint,
+    TransportConfig, TransportPath,
 };
 use rlpkg_env::Transport;
 use rlpkg_vec_env::{EnvError, VecEnv};
@@ -315,6 +315,8 @@ fn evaluate(
             act(obs, episodes)
         })?;
     rows.push(OutcomeSummary::of("policy", &outcomes));
+    let mut episode_table = EpisodeTable::default();
+    episode_table.add("policy", &env, &outcomes);
     let (settled_packages, replaced_packages) =
         (transport.settled_variants, env.replaced_variants());
     first_episode.push(("policy".into(), traces.remove(0)));
@@ -324,7 +326,9 @@ fn evaluate(
             crate::interrupt::check()?;
             Ok(env.scripted_actions(scale))
         })?;
-        rows.push(OutcomeSummary::of(&format!("scripted x{scale}"), &outcomes));
+        let driver = format!("scripted x{scale}");
+        rows.push(OutcomeSummary::of(&driver, &outcomes));
+        episode_table.add(&driver, &env, &outcomes);
     }
     let base_limits = MotionLimits::of_tool(&transport.limits);
     for &scale in &args.profile {
@@ -340,7 +344,9 @@ fn evaluate(
             }
             Ok(env.profile_actions(plans.as_deref().unwrap_or_default()))
         })?;
-        rows.push(OutcomeSummary::of(&format!("profile x{scale}"), &outcomes));
+        let driver = format!("profile x{scale}");
+        rows.push(OutcomeSummary::of(&driver, &outcomes));
+        episode_table.add(&driver, &env, &outcomes);
     }
     for command in &optimized {
         let mut env = make().map_err(input_error)?;
@@ -349,6 +355,7 @@ fn evaluate(
             Ok(env.open_loop_actions(&command.library))
         })?;
         rows.push(OutcomeSummary::of(&command.driver, &outcomes));
+        episode_table.add(&command.driver, &env, &outcomes);
     }
     let mut baselines = Vec::new();
     for velocity in recorded {
@@ -363,10 +370,9 @@ fn evaluate(
                 crate::interrupt::check()?;
                 Ok(env.timed_actions(&timings, 1.0))
             })?;
-        rows.push(OutcomeSummary::of(
-            &format!("recorded {velocity}"),
-            &outcomes,
-        ));
+        let driver = format!("recorded {velocity}");
+        rows.push(OutcomeSummary::of(&driver, &outcomes));
+        episode_table.add(&driver, &env, &outcomes);
         first_episode.push((format!("recorded {velocity}"), traces.remove(0)));
         baselines.push(RecordedBaseline {
             velocity: velocity.to_string(),
@@ -492,10 +498,13 @@ fn evaluate(
     let summary = out.join("summary.json");
     let report_json = serde_json::to_string_pretty(&report)?;
     crate::files::write_atomic(&summary, report_json.as_bytes())?;
+    let per_episode = out.join("episodes.csv");
+    crate::files::write_atomic(&per_episode, episode_table.csv().as_bytes())?;
     text += &format!(
-        "plots: {}\nsummary: {}\n",
+        "plots: {}\nsummary: {}\nper episode: {}\n",
         report.plots.join(", "),
-        summary.display()
+        summary.display(),
+        per_episode.display()
     );
     if json {
         println!("{report_json}");
