@@ -182,7 +182,7 @@ fn profile_rows_join_the_table_and_bad_scales_are_refused() {
     for (k, driver) in drivers.iter().enumerate() {
         let mine: Vec<&Vec<&str>> = lines[1..]
             .iter()
-            .filter(|l| l[0] == format!("{driver:?}"))
+            .filter(|l| l[0] == format!("\"{driver}\""))
             .collect();
         assert_eq!(mine.len(), 2, "{driver}\n{csv}");
         let placed = mine.iter().filter(|l| l[ending] == "success").count();

@@ -328,6 +328,8 @@ impl EpisodeTable {
     /// `i` ran in copy `i`; call before `env` is reset again, which draws new episodes).
     pub fn add(&mut self, driver: &str, env: &Transport, outcomes: &[EpisodeOutcome]) {
         let scene_vacuum = env.model.config.seal.vacuum_kpa;
+        // Quoted as CSV quotes: a driver's name can hold a folder's (`optimized <folder>`).
+        let driver = format!("\"{}\"", driver.replace('"', "\"\""));
         for (episode, o) in outcomes.iter().enumerate() {
             let drawn = env.conditions(episode);
             let spec = env.sim.spec(episode);
@@ -336,7 +338,7 @@ impl EpisodeTable {
                 .entries()
                 .map(|(_, value, ..)| value.to_string());
             self.csv += &format!(
-                "{driver:?},{episode},{},{},{:.3},{},{},{},{},{:.4},{:.6},{:.6}\n",
+                "{driver},{episode},{},{},{:.3},{},{},{},{},{:.4},{:.6},{:.6}\n",
                 o.package,
                 drawn.path_id,
                 drawn.target_tilt_rad.to_degrees(),
@@ -492,5 +494,10 @@ mod tests {
             assert_eq!(k_spr_e, t.simulator().spec(copy).params.k_spr_e);
             assert_eq!(row[column("ending")], "timed_out");
         }
+        // A name with quotes and commas (an optimised command's folder) stays one CSV field.
+        let mut quoted = EpisodeTable::default();
+        quoted.add("optimized a \"b\", c", &t, &outcomes[..1]);
+        let row = quoted.csv().lines().nth(1).unwrap();
+        assert!(row.starts_with("\"optimized a \"\"b\"\", c\",0,"), "{row}");
     }
 }
