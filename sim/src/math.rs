@@ -71,10 +71,17 @@ pub trait Real:
             -0.214_598_801_6,
             1.570_796_305_0,
         ];
+        // Horner's scheme written out: a loop here would be one of the many tiny loops that make
+        // LLVM's loop passes slow on a substep with every force law inlined.
+        let [c0, c1, c2, c3, c4, c5, c6] = coefficients;
         let mut p = Self::splat(-0.001_262_491_1);
-        for c in coefficients {
-            p = p * a + Self::splat(c);
-        }
+        p = p * a + Self::splat(c0);
+        p = p * a + Self::splat(c1);
+        p = p * a + Self::splat(c2);
+        p = p * a + Self::splat(c3);
+        p = p * a + Self::splat(c4);
+        p = p * a + Self::splat(c5);
+        p = p * a + Self::splat(c6);
         let r = (Self::splat(1.0) - a).sqrt() * p;
         Self::select_lt(
             x,
@@ -132,17 +139,34 @@ impl Real for f64 {
 #[repr(transparent)]
 pub struct Lanes<const W: usize>(pub [f32; W]);
 
+/// `Lanes([f(0), f(1), …, f(W − 1)])`, written out without a loop for the widths the simulator
+/// uses (1, 4 and 8). Every arithmetic operation is inlined into the solvers' substeps, thousands
+/// of them per substep: as loops, each is a loop LLVM's loop passes visit across the whole
+/// function, which made compiling the simulator take the better part of an hour.
+#[inline(always)]
+fn lanewise<const W: usize>(f: impl Fn(usize) -> f32) -> Lanes<W> {
+    macro_rules! written_out {
+        ($($l:literal)*) => {{
+            let mut out = [0.0; W];
+            $(out[$l] = f($l);)*
+            Lanes(out)
+        }};
+    }
+    match W {
+        1 => written_out!(0),
+        4 => written_out!(0 1 2 3),
+        8 => written_out!(0 1 2 3 4 5 6 7),
+        _ => Lanes(std::array::from_fn(f)),
+    }
+}
+
 macro_rules! lane_binop {
     ($trait:ident, $method:ident, $op:tt) => {
         impl<const W: usize> $trait for Lanes<W> {
             type Output = Self;
             #[inline(always)]
             fn $method(self, rhs: Self) -> Self {
-                let mut out = [0.0; W];
-                for l in 0..W {
-                    out[l] = self.0[l] $op rhs.0[l];
-                }
-                Lanes(out)
+                lanewise(|l| self.0[l] $op rhs.0[l])
             }
         }
     };
@@ -156,11 +180,7 @@ impl<const W: usize> Neg for Lanes<W> {
     type Output = Self;
     #[inline(always)]
     fn neg(self) -> Self {
-        let mut out = [0.0; W];
-        for l in 0..W {
-            out[l] = -self.0[l];
-        }
-        Lanes(out)
+        lanewise(|l| -self.0[l])
     }
 }
 impl<const W: usize> AddAssign for Lanes<W> {
@@ -179,23 +199,16 @@ impl<const W: usize> SubAssign for Lanes<W> {
 impl<const W: usize> Real for Lanes<W> {
     #[inline(always)]
     fn splat(value: f32) -> Self {
-        Lanes([value; W])
+        // Not `[value; W]`, which is compiled as a loop (see `lanewise`).
+        lanewise(|_| value)
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
-        let mut out = [0.0; W];
-        for l in 0..W {
-            out[l] = self.0[l].sqrt();
-        }
-        Lanes(out)
+        lanewise(|l| self.0[l].sqrt())
     }
     #[inline(always)]
     fn select_lt(a: Self, b: Self, yes: Self, no: Self) -> Self {
-        let mut out = [0.0; W];
-        for l in 0..W {
-            out[l] = if a.0[l] < b.0[l] { yes.0[l] } else { no.0[l] };
-        }
-        Lanes(out)
+        lanewise(|l| if a.0[l] < b.0[l] { yes.0[l] } else { no.0[l] })
     }
 }
 
@@ -416,16 +429,25 @@ impl<T: Real> Sym3<T> {
     /// `self += o`.
     #[inline(always)]
     pub fn add_assign(&mut self, o: Self) {
-        for (a, b) in self.m.iter_mut().zip(o.m) {
-            *a += b;
-        }
+        // Written out, not a loop (see `lanewise`).
+        let (m, o) = (&mut self.m, o.m);
+        m[0] += o[0];
+        m[1] += o[1];
+        m[2] += o[2];
+        m[3] += o[3];
+        m[4] += o[4];
+        m[5] += o[5];
     }
     /// `self −= o`.
     #[inline(always)]
     pub fn sub_assign(&mut self, o: Self) {
-        for (a, b) in self.m.iter_mut().zip(o.m) {
-            *a -= b;
-        }
+        let (m, o) = (&mut self.m, o.m);
+        m[0] -= o[0];
+        m[1] -= o[1];
+        m[2] -= o[2];
+        m[3] -= o[3];
+        m[4] -= o[4];
+        m[5] -= o[5];
     }
     /// `self + o`.
     #[inline(always)]

@@ -14,7 +14,7 @@ use crate::model::Model;
 use crate::tool::{plan, ToolCommand, ToolCommandReport, ToolDrive, ToolState};
 use crate::trajectory::ToolTrajectory;
 
-use block::{advance_block, EnvBlock};
+use block::EnvBlock;
 
 /// Environments per block in batches (8 f32 lanes = one AVX2 register).
 pub const LANES: usize = 8;
@@ -317,10 +317,10 @@ impl Simulator {
         match &mut self.blocks {
             Blocks::Wide(blocks) => blocks
                 .par_iter_mut()
-                .for_each(|b| advance_block(b, model, k, substeps, false)),
+                .for_each(|b| b.advance(model, k, substeps, false)),
             Blocks::Single(blocks) => blocks
                 .iter_mut()
-                .for_each(|b| advance_block(b, model, k, substeps, true)),
+                .for_each(|b| b.advance(model, k, substeps, true)),
         }
         self.substep += substeps;
         self.collect_events();

@@ -221,7 +221,6 @@ impl<const W: usize> EnvBlock<W> {
     }
 
     /// Advances every active lane by `substeps` substeps of its own clock.
-    #[inline(always)]
     pub(crate) fn advance(
         &mut self,
         model: &Model,
@@ -259,36 +258,4 @@ impl<const W: usize> EnvBlock<W> {
             }
         }
     }
-}
-
-/// Runs [`EnvBlock::advance`] compiled for AVX2 when the CPU has it (same IEEE results, wider
-/// SIMD).
-pub(crate) fn advance_block<const W: usize>(
-    block: &mut EnvBlock<W>,
-    model: &Model,
-    k: &StepConstants,
-    substeps: u64,
-    parallel: bool,
-) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2, checked just above.
-            unsafe { advance_avx2(block, model, k, substeps, parallel) };
-            return;
-        }
-    }
-    block.advance(model, k, substeps, parallel);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn advance_avx2<const W: usize>(
-    block: &mut EnvBlock<W>,
-    model: &Model,
-    k: &StepConstants,
-    substeps: u64,
-    parallel: bool,
-) {
-    block.advance(model, k, substeps, parallel);
 }

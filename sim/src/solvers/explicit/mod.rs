@@ -108,7 +108,8 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
         let spring_force = &mut state.spring_force[..];
         let (cp, cn) = (&mut state.contact_point[..], &mut state.contact_normal[..]);
         // One environment: the two halves on two threads, each compiled for AVX2 (closures run
-        // by rayon leave the block's AVX2-compiled code). Otherwise direct calls, inlined into it.
+        // by rayon leave the substep's AVX2-compiled code). Otherwise direct calls, inlined into
+        // it.
         let (disc_f, disc_t) = if step.parallel {
             let membrane = move || membrane_forces_simd(model, x, v, springs, spring_force, &p, f);
             let others = move || {
