@@ -3,11 +3,12 @@
 //! quaternion and symmetric 3×3 matrix ([`Sym3`], the solvers' stiffness blocks) types generic
 //! over it.
 //!
-//! Every force law is written once, generically; on [`Lanes`] each arithmetic operation is a
-//! fixed-length loop over the W lanes that the compiler turns into one SIMD instruction. Lanes never
-//! interact, all operations are plain IEEE-754 (no fused multiply-add, no reassociation, `acos` is a
-//! polynomial built from the same operations), so lane `l` computes exactly what the scalar `f32`
-//! code computes for that environment: this is what makes results bit-identical whatever the batch.
+//! Every force law is written once, generically; on [`Lanes`] each arithmetic operation is the
+//! same operation written out for each of the W lanes, which the compiler turns into one SIMD
+//! instruction. Lanes never interact, all operations are plain IEEE-754 (no fused multiply-add, no
+//! reassociation, `acos` is a polynomial built from the same operations), so lane `l` computes
+//! exactly what the scalar `f32` code computes for that environment: this is what makes results
+//! bit-identical whatever the batch.
 
 use std::ops::{Add, AddAssign, Div, Mul, Neg, Sub, SubAssign};
 
@@ -141,8 +142,8 @@ pub struct Lanes<const W: usize>(pub [f32; W]);
 
 /// `Lanes([f(0), f(1), …, f(W − 1)])`, written out without a loop for the widths the simulator
 /// uses (1, 4 and 8). Every arithmetic operation is inlined into the solvers' substeps, thousands
-/// of them per substep: as loops, each is a loop LLVM's loop passes visit across the whole
-/// function, which made compiling the simulator take the better part of an hour.
+/// of them per substep: written as loops, each would be one more loop for LLVM's loop passes to
+/// visit across the whole function, and compiling the simulator would take most of an hour.
 #[inline(always)]
 fn lanewise<const W: usize>(f: impl Fn(usize) -> f32) -> Lanes<W> {
     macro_rules! written_out {

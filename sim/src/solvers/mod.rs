@@ -105,7 +105,7 @@ impl<const W: usize> Integrator<W> for AnySolver<W> {
 
 /// Gives a solver `substep_entry`: its substep compiled for AVX2 when the CPU has it (same IEEE
 /// results, wider SIMD), else for the baseline. Each solver's substep is a function of its own,
-/// never inlined into the block's loop: with all three inlined into one function, LLVM took most
+/// never inlined into the block's loop: with all three inlined into one function, LLVM takes most
 /// of an hour to optimise the crate (its loop passes scale with the function's size).
 macro_rules! substep_entry {
     ($solver:ident) => {
