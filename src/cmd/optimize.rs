@@ -585,6 +585,8 @@ fn run_mpc(
     let packages = config.conditions.packages;
     let time_limit_steps = (transport.time_limit_s * transport.control_hz).ceil() as usize;
     let mut plant = Transport::new(transport, packages, source).map_err(input_error)?;
+    // The horizon search's commands are path speeds.
+    plant.drive_path_speed();
     let search = HorizonSearch {
         curve,
         iterations: settings.iterations,

@@ -53,6 +53,27 @@ pub struct TransportConfig {
     /// The cell's sensors: required with `observation = "sensors"`, refused otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sensors: Option<SensorConfig>,
+    /// With this table the first action is the rate of a motion profile's clock instead of the
+    /// path speed (optional; see [`ProfileRateAction`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub profile_rate: Option<ProfileRateAction>,
+}
+
+/// `[transport.profile_rate]`: the policy plays a time-optimal, jerk-limited motion profile along
+/// each episode's path (planned at the episode's start under the tool's limits times
+/// `limits_scale`, the tilt following the minimum-jerk schedule) and its first action is the
+/// rate of the profile's clock: 1 plays the plan as planned, 0 holds the reference, 2 plays it
+/// twice as fast. The result still goes through the path speed's clamps. The policy starts as
+/// a careful driver and learns where the package allows more speed or needs less.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfileRateAction {
+    /// The plan's limits as a multiple of the tool's (`[transport.limits]`), in (0, 1].
+    pub limits_scale: f64,
+    /// Largest rate of the profile's clock, in [1, 4].
+    pub max_rate: f64,
+    /// Largest change of the rate per second (1/s): the clock speeds up and slows down smoothly.
+    pub max_rate_change_per_s: f64,
 }
 
 /// What the actor observes (`transport.observation`).
@@ -579,6 +600,17 @@ impl TransportConfig {
                 file: source.to_string(),
                 message: e.to_string(),
             })?;
+        if let Some(p) = &self.profile_rate {
+            check(s, "profile_rate.limits_scale", p.limits_scale, 1e-3, 1.0)?;
+            check(s, "profile_rate.max_rate", p.max_rate, 1.0, 4.0)?;
+            check(
+                s,
+                "profile_rate.max_rate_change_per_s",
+                p.max_rate_change_per_s,
+                1e-3,
+                100.0,
+            )?;
+        }
         self.validate_sensors(source)
     }
 
@@ -857,6 +889,28 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(err.contains("goal_jiter_m"), "{err}");
+        let rate = "\n[transport.profile_rate]\nlimits_scale = 1.0\nmax_rate = 2.0\nmax_rate_change_per_s = 2.0\n";
+        assert!(TransportConfig::from_toml_str(&(text.clone() + rate), "t.toml").is_ok());
+        for (from, to, key) in [
+            (
+                "limits_scale = 1.0",
+                "limits_scale = 1.5",
+                "profile_rate.limits_scale",
+            ),
+            ("max_rate = 2.0", "max_rate = 0.5", "profile_rate.max_rate"),
+            (
+                "max_rate_change_per_s = 2.0",
+                "max_rate_change_per_s = -1.0",
+                "profile_rate.max_rate_change_per_s",
+            ),
+            ("max_rate = 2.0", "max_rates = 2.0", "max_rates"),
+        ] {
+            let err =
+                TransportConfig::from_toml_str(&(text.clone() + &rate.replace(from, to)), "t.toml")
+                    .unwrap_err()
+                    .to_string();
+            assert!(err.contains("t.toml") && err.contains(key), "{to}: {err}");
+        }
         let err = Transport::new(config(&text.replace("\"HHHHM\"", "\"NOPE\"")), 1, "t.toml")
             .err()
             .unwrap()

@@ -87,18 +87,35 @@ impl Transport {
     pub fn plan_profiles(&self, limits: &MotionLimits) -> Result<Vec<PathProfile>, EnvError> {
         self.episodes
             .iter()
-            .map(|episode| {
-                let path = &self.paths[episode.path];
-                let pose = |s: f64| {
-                    (
-                        self.reference_position(episode, s),
-                        self.nominal_tilt(episode, s),
-                    )
-                };
-                plan_path_profile(path.length_m, pose, limits, self.dt)
-                    .map_err(|e| EnvError::Simulator(format!("path {}: {e}", path.id)))
-            })
+            .map(|episode| self.plan_episode(episode, limits))
             .collect()
+    }
+
+    /// The time-optimal, jerk-limited progress along `episode`'s path under `limits`.
+    fn plan_episode(
+        &self,
+        episode: &Episode,
+        limits: &MotionLimits,
+    ) -> Result<PathProfile, EnvError> {
+        let path = &self.paths[episode.path];
+        let pose = |s: f64| {
+            (
+                self.reference_position(episode, s),
+                self.nominal_tilt(episode, s),
+            )
+        };
+        plan_path_profile(path.length_m, pose, limits, self.dt)
+            .map_err(|e| EnvError::Simulator(format!("path {}: {e}", path.id)))
+    }
+
+    /// Plans copy `env`'s motion profile for its current episode under the tool's limits times
+    /// `[transport.profile_rate].limits_scale` (a no-op without that table).
+    pub(super) fn plan_profile(&mut self, env: usize) -> Result<(), EnvError> {
+        if let Some(p) = self.profile_rate {
+            let limits = MotionLimits::of_tool(&self.config.limits).scaled(p.limits_scale);
+            self.plans[env] = Some(self.plan_episode(&self.episodes[env], &limits)?);
+        }
+        Ok(())
     }
 
     /// The profile baseline's actions for every copy now: the path speed `profiles[copy]`
@@ -172,13 +189,38 @@ impl Transport {
         Ok(())
     }
 
+    /// The path speed copy `env`'s first action asks for, the action clamped to its bounds, and
+    /// the profile's clock after the interval: the action itself, or with
+    /// `[transport.profile_rate]` the speed that plays the profile at the action's clock rate
+    /// (its change limited), like [`Transport::profile_actions`] at rate 1.
+    fn path_speed_request(&self, env: usize, action: f32) -> (f64, f64, f64) {
+        let episode = &self.episodes[env];
+        let (Some(p), Some(plan)) = (self.profile_rate, &self.plans[env]) else {
+            let speed = (action as f64).clamp(0.0, self.config.limits.max_path_speed_m_s);
+            return (speed, speed, episode.profile_clock);
+        };
+        let t = self.dt;
+        let change = p.max_rate_change_per_s * t;
+        let previous = episode.previous_action[0];
+        let rate = (action as f64)
+            .clamp(0.0, p.max_rate)
+            .clamp(previous - change, previous + change);
+        let clock = episode.profile_clock + rate * t;
+        let (planned, _) = plan.at(episode.profile_clock);
+        let (_, planned_speed) = plan.at(clock);
+        let lag = planned - episode.progress;
+        let speed = (rate * planned_speed + PROFILE_LAG_GAIN * lag / t).max(0.0);
+        (speed, rate, clock)
+    }
+
     /// Turns copy `env`'s action into the reference for the next interval and commands the tool.
     fn command(&mut self, env: usize, action: &[f32]) -> Result<(), EnvError> {
+        let (requested, first, clock) = self.path_speed_request(env, action[0]);
         let l = &self.config.limits;
         let t = self.dt;
         let tilt = l.max_tilt_offset_deg.to_radians();
         let a = [
-            (action[0] as f64).clamp(0.0, l.max_path_speed_m_s),
+            first,
             (action[1] as f64).clamp(-tilt, tilt),
             (action[2] as f64).clamp(-tilt, tilt),
         ];
@@ -188,7 +230,8 @@ impl Transport {
         let step = l.max_path_accel_m_s2 * t;
         // Never faster than the tool can still brake to rest at the place pose.
         let brake = (2.0 * l.max_path_accel_m_s2 * remaining).sqrt();
-        let speed = a[0]
+        let speed = requested
+            .clamp(0.0, l.max_path_speed_m_s)
             .clamp(episode.path_speed - step, episode.path_speed + step)
             .clamp(0.0, brake.max(0.0));
         let mut progress = (episode.progress + 0.5 * (episode.path_speed + speed) * t).min(length);
@@ -221,6 +264,7 @@ impl Transport {
         episode.progress = progress;
         episode.path_speed = speed;
         episode.previous_action = a;
+        episode.profile_clock = clock;
         self.episodes[env] = episode;
         Ok(())
     }
@@ -301,5 +345,66 @@ mod tests {
             let fastest = speeds[copy].iter().fold(0.0f64, |a, &b| a.max(b));
             assert!(fastest <= profile.peak_speed_m_s * 1.05, "{fastest}");
         }
+    }
+
+    #[test]
+    fn a_profile_rate_action_plays_the_profile_at_its_rate_within_the_rate_limits() {
+        use crate::transport::MotionLimits;
+        let text = test_table()
+            + "\n[transport.profile_rate]\nlimits_scale = 0.5\nmax_rate = 2.0\nmax_rate_change_per_s = 2.0\n";
+        let mut t = env(&text, 2);
+        let spec = t.spec().clone();
+        assert_eq!(spec.action.names[0], "profile_rate");
+        assert_eq!(spec.action.high[0], 2.0);
+        assert_eq!(spec.observation.names[14], "profile_clock");
+        assert_eq!(spec.observation.names[16], "previous_profile_rate");
+        let mut out = t.buffers();
+        t.try_reset(3, &mut out).unwrap();
+        // The plan the episode plays is the profile baseline's at the same limits.
+        let limits = MotionLimits::of_tool(&t.config.limits).scaled(0.5);
+        let plans = t.plan_profiles(&limits).unwrap();
+        let dt = t.control_interval_s();
+        let obs = spec.observation.dim();
+        // The rate's largest change per control interval (2 per second).
+        let change = 2.0 * dt;
+        // Copy 0 plays the plan at rate 1; copy 1 holds the reference (rate 0) for ten steps,
+        // then asks for more than the largest rate. Its rate moves towards the rate asked (within
+        // [0, 2]) by at most `change` per step, and its clock runs at that rate.
+        let (mut rate, mut clock) = (1.0f64, 0.0);
+        for step in 0..20 {
+            let hold = step < 10;
+            t.step(
+                &[1.0, 0.0, 0.0, if hold { 0.0 } else { 3.0 }, 0.0, 0.0],
+                &mut out,
+            )
+            .unwrap();
+            let played = &t.episodes[0];
+            assert!((played.profile_clock - (step + 1) as f64 * dt).abs() < 1e-9);
+            let (planned, _) = plans[0].at(played.profile_clock);
+            assert!(
+                (played.progress - planned).abs() < 5e-3,
+                "step {step}: {} m along, planned {planned} m",
+                played.progress
+            );
+            assert_eq!(out.obs[14], played.profile_clock as f32);
+            rate = if hold {
+                (rate - change).max(0.0)
+            } else {
+                (rate + change).min(2.0)
+            };
+            clock += rate * dt;
+            let held = &t.episodes[1];
+            assert_eq!(held.previous_action[0], rate, "step {step}");
+            assert!((held.profile_clock - clock).abs() < 1e-12, "step {step}");
+            assert_eq!(out.obs[obs + 16], rate as f32);
+        }
+        // It stopped, then sped up again.
+        assert!(rate > 0.9 && clock < 12.0 * dt, "{rate} {clock}");
+        // A baseline drives the same config with path speeds along the recorded tilt.
+        t.drive_path_speed();
+        t.try_reset(3, &mut out).unwrap();
+        t.step(&[0.3, 0.0, 0.0, 0.3, 0.0, 0.0], &mut out).unwrap();
+        assert_eq!(t.episodes[0].previous_action[0], 0.3f32 as f64);
+        assert_eq!(t.episodes[0].profile_clock, 0.0);
     }
 }

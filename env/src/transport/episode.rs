@@ -84,6 +84,9 @@ pub(super) struct Episode {
     pub(super) start_time: f64,
     /// Control steps taken.
     pub(super) steps: usize,
+    /// Time along the episode's motion profile (s; `[transport.profile_rate]` only).
+    #[serde(default)]
+    pub(super) profile_clock: f64,
 }
 
 /// Uniform draw in `[lo, hi]` (`lo` when the range is empty).
@@ -354,6 +357,11 @@ impl Transport {
             start_time: state.time,
             ..Episode::default()
         };
+        if self.profile_rate.is_some() {
+            // The profile's clock starts at its planned pace.
+            self.episodes[env].previous_action[0] = 1.0;
+            self.plan_profile(env)?;
+        }
         Ok(())
     }
 

@@ -20,6 +20,14 @@
 //! ([`rlpkg_sim::ToolCommand::Twist`]) within the robot limits (`[transport.limits]`, which
 //! replace the scene's `[tool_limits]`).
 //!
+//! With `[transport.profile_rate]` the first action is `profile_rate` instead (unit 1, [0,
+//! `max_rate`], its change limited to `max_rate_change_per_s`): the clock rate at which the
+//! reference plays a time-optimal, jerk-limited motion profile planned at the episode's start
+//! ([`ProfileRateAction`]); the nominal tilt then follows the minimum-jerk schedule, and the
+//! actor reads the profile's clock and its last rate where it would read the episode time and
+//! its last path speed. A robot running such a policy plans the same profile
+//! ([`plan_path_profile`] under the limits of the run's config).
+//!
 //! # Observations
 //! The actor sees [`ACTOR_OBSERVATIONS`] and, with `observation = "privileged"` (the default), the
 //! simulator's exact values and each cup's utilisation; with `observation = "sensors"`, only what
@@ -72,8 +80,8 @@ use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{CupLoad, EnvObservation, HealthEvent, Model, SceneConfig, SealEvent, Simulator};
 
 pub use config::{
-    load_scene, FailureLimits, ObservationMode, RewardWeights, SuccessTolerances, TransportConfig,
-    TransportLimits, TransportRandomization, LIMIT_HEADROOM,
+    load_scene, FailureLimits, ObservationMode, ProfileRateAction, RewardWeights,
+    SuccessTolerances, TransportConfig, TransportLimits, TransportRandomization, LIMIT_HEADROOM,
 };
 pub use control::TiltSchedule;
 pub use episode::EpisodeConditions;
@@ -153,6 +161,11 @@ pub struct Transport {
     autoreset: Autoreset,
     /// How the nominal orientation tilts along the path.
     tilt_schedule: TiltSchedule,
+    /// Whether the first action is a motion profile's clock rate (`[transport.profile_rate]`)
+    /// rather than the path speed; the baselines drive with path speeds.
+    profile_rate: Option<ProfileRateAction>,
+    /// Each copy's motion profile for its current episode (with `profile_rate`).
+    plans: Vec<Option<PathProfile>>,
 }
 
 fn sim_error(e: impl std::fmt::Display) -> EnvError {
@@ -213,7 +226,6 @@ impl Transport {
             variants: Vec::new(),
             fallback,
             replaced_variants: 0,
-            config,
             spec,
             model,
             sim,
@@ -224,7 +236,14 @@ impl Transport {
             retire_finished: false,
             retired: vec![false; num_envs],
             autoreset: Autoreset::new(num_envs),
-            tilt_schedule: TiltSchedule::Recorded,
+            // The profile is planned along the minimum-jerk tilt (as the profile baseline's).
+            tilt_schedule: match config.profile_rate {
+                Some(_) => TiltSchedule::MinimumJerk,
+                None => TiltSchedule::Recorded,
+            },
+            profile_rate: config.profile_rate,
+            plans: vec![None; num_envs],
+            config,
         })
     }
 
@@ -234,6 +253,16 @@ impl Transport {
     /// finished costs nothing, so a batch of one-episode copies runs as fast as its slowest block.
     pub fn set_retire_finished(&mut self, on: bool) {
         self.retire_finished = on;
+    }
+
+    /// Makes every action's first value a path speed and the nominal tilt the recorded one,
+    /// whatever `[transport.profile_rate]` says: the baselines' actions
+    /// ([`Transport::scripted_actions`], [`Transport::profile_actions`], ...) are path speeds.
+    /// Call before the reset.
+    pub fn drive_path_speed(&mut self) {
+        self.profile_rate = None;
+        self.plans.fill(None);
+        self.tilt_schedule = TiltSchedule::Recorded;
     }
 
     /// The simulator the copies run on (particle positions, the disc, ... for pictures).

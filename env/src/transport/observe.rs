@@ -38,6 +38,14 @@ pub const ACTOR_OBSERVATIONS: [(&str, &str); 19] = [
     ("previous_tilt_offset_z", "rad"),
 ];
 
+/// What two of [`ACTOR_OBSERVATIONS`] become with `[transport.profile_rate]` (index, name,
+/// unit): the time along the motion profile instead of the episode's, and the last clock rate
+/// instead of the last path speed command.
+const PROFILE_RATE_OBSERVATIONS: [(usize, &str, &str); 2] = [
+    (14, "profile_clock", "s"),
+    (16, "previous_profile_rate", "1"),
+];
+
 /// How many of [`ACTOR_OBSERVATIONS`] come from the tool's pose and twist (measured with
 /// sensors; the critic then also sees their exact values, named `exact_<name>`).
 const MEASURED_TOOL_OBSERVATIONS: usize = 12;
@@ -122,6 +130,11 @@ fn observation_groups(config: &TransportConfig, num_cups: usize) -> (Named, Name
     let utilisations = (0..num_cups).map(|k| (format!("cup{k}_utilisation"), "1".to_string()));
     let privileged = critic_only_observations(num_cups, &randomised_materials(config));
     let mut actor = owned(&ACTOR_OBSERVATIONS);
+    if config.profile_rate.is_some() {
+        for (k, name, unit) in PROFILE_RATE_OBSERVATIONS {
+            actor[k] = (name.to_string(), unit.to_string());
+        }
+    }
     match &config.sensors {
         Some(sensors) if config.observation == ObservationMode::Sensors => {
             actor.extend((0..num_cups).map(|k| (format!("cup{k}_vacuum_pressure"), "Pa".into())));
@@ -168,7 +181,10 @@ pub(super) fn build_spec(config: &TransportConfig, num_cups: usize) -> EnvSpec {
         observation: space(&observation),
         critic_observation: Some(space(&critic)),
         action: Space::continuous(&[
-            ("path_speed", "m/s", 0.0, l.max_path_speed_m_s as f32),
+            match &config.profile_rate {
+                Some(p) => ("profile_rate", "1", 0.0, p.max_rate as f32),
+                None => ("path_speed", "m/s", 0.0, l.max_path_speed_m_s as f32),
+            },
             ("tilt_offset_x", "rad", -tilt, tilt),
             ("tilt_offset_z", "rad", -tilt, tilt),
         ]),
@@ -243,10 +259,14 @@ impl Transport {
         row.extend(rotation_between(q, goal_q).to_array());
         row.extend(v.to_array());
         row.extend(w.to_array());
+        let time = match self.profile_rate {
+            Some(_) => episode.profile_clock,
+            None => self.states[env].time - episode.start_time,
+        };
         row.extend([
             episode.progress / length,
             episode.path_speed,
-            self.states[env].time - episode.start_time,
+            time,
             episode.target_tilt,
         ]);
         row.extend(episode.previous_action);

@@ -333,6 +333,8 @@ impl OpenLoopProblem {
             return Err(EnvError::NoEnvs(packages * population));
         }
         let mut env = Transport::new(config, population * packages, source)?;
+        // An open-loop command is path speeds.
+        env.drive_path_speed();
         let mut buffers = env.buffers();
         env.try_reset(seed, &mut buffers)?;
         let starts = (0..packages).map(|k| CopyState::capture(&env, k)).collect();

@@ -106,6 +106,8 @@ impl SavedTransport {
                     previous_object_in_tool: DVec3::new(ox, oy, oz),
                     start_time,
                     steps: steps as usize,
+                    // The flat layout predates the profile-rate action.
+                    profile_clock: 0.0,
                 })
             })
             .collect::<Result<_, String>>()?;
@@ -202,6 +204,12 @@ impl Transport {
         self.rngs = saved.rngs.iter().map(rng_from_words).collect();
         self.variants = saved.variants;
         self.retired.fill(false);
+        // The plans follow from the episodes (planned the same way at their start).
+        if self.profile_rate.is_some() {
+            for env in 0..n {
+                self.plan_profile(env)?;
+            }
+        }
         self.read_simulator()
     }
 }

@@ -301,6 +301,13 @@ fn evaluate(
     let _cooperation = crate::interrupt::Cooperation::start();
     let act = &driver.act;
     let make = || Transport::new(transport.clone(), episodes, source);
+    // The baselines drive with path speeds, whatever the policy's first action is.
+    let baseline = |config: TransportConfig, copies: usize| {
+        Transport::new(config, copies, source).map(|mut env| {
+            env.drive_path_speed();
+            env
+        })
+    };
     let held_out = match args.trajectories.as_deref() {
         Some(split) => Some(held_out_configs(transport, split, source)?),
         None => None,
@@ -321,7 +328,7 @@ fn evaluate(
         (transport.settled_variants, env.replaced_variants());
     first_episode.push(("policy".into(), traces.remove(0)));
     for &scale in scales {
-        let mut env = make().map_err(input_error)?;
+        let mut env = baseline(transport.clone(), episodes).map_err(input_error)?;
         let (outcomes, _) = run_traced_episodes::<anyhow::Error>(&mut env, seed, &[], |env, _| {
             crate::interrupt::check()?;
             Ok(env.scripted_actions(scale))
@@ -333,7 +340,7 @@ fn evaluate(
     let base_limits = MotionLimits::of_tool(&transport.limits);
     for &scale in &args.profile {
         let limits = base_limits.scaled(scale);
-        let mut env = make().map_err(input_error)?;
+        let mut env = baseline(transport.clone(), episodes).map_err(input_error)?;
         env.set_tilt_schedule(TiltSchedule::MinimumJerk);
         // Planned once per episode, right after the reset that draws it.
         let mut plans: Option<Vec<PathProfile>> = None;
@@ -349,7 +356,7 @@ fn evaluate(
         episode_table.add(&driver, &env, &outcomes);
     }
     for command in &optimized {
-        let mut env = make().map_err(input_error)?;
+        let mut env = baseline(transport.clone(), episodes).map_err(input_error)?;
         let (outcomes, _) = run_traced_episodes::<anyhow::Error>(&mut env, seed, &[], |env, _| {
             crate::interrupt::check()?;
             Ok(env.open_loop_actions(&command.library))
@@ -364,7 +371,7 @@ fn evaluate(
         // take 19-22 s): the time limit does not change what an episode draws.
         let mut long = transport.clone();
         long.time_limit_s = long.time_limit_s.max(longest_timing_s(&timings) * 1.25);
-        let mut env = Transport::new(long, episodes, source).map_err(input_error)?;
+        let mut env = baseline(long, episodes).map_err(input_error)?;
         let (outcomes, mut traces) =
             run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |env, _| {
                 crate::interrupt::check()?;
@@ -410,6 +417,7 @@ fn evaluate(
             })?;
         trajectory_rows.push(OutcomeSummary::of(&format!("{id} policy"), &outcomes));
         drivers.push(("policy".to_string(), traces.remove(0)));
+        env.drive_path_speed();
         let (outcomes, mut traces) =
             run_traced_episodes::<anyhow::Error>(&mut env, seed, &[0], |env, _| {
                 crate::interrupt::check()?;
@@ -626,6 +634,7 @@ fn render_beside_medium(
     let mut slow = transport.clone();
     slow.time_limit_s = slow.time_limit_s.max(longest_timing_s(medium) * 1.25);
     let mut env = Transport::new(slow, 1, source).map_err(input_error)?;
+    env.drive_path_speed();
     let by_recording = play::<anyhow::Error>(&mut env, seed, |env, _| {
         crate::interrupt::check()?;
         Ok(env.timed_actions(medium, 1.0))
