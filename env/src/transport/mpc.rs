@@ -70,7 +70,6 @@ impl RecedingHorizon {
         candidates.variants = plant.variants.clone();
         candidates.tilt_schedule = plant.tilt_schedule;
         candidates.profile_rate = plant.profile_rate;
-        candidates.plans = vec![None; candidates.num_envs()];
         candidates.set_retire_finished(true);
         let horizon_steps = (search.curve.horizon_s / plant.dt).round().max(1.0) as usize;
         Ok(Self {
