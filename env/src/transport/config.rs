@@ -63,8 +63,8 @@ pub struct TransportConfig {
 /// each episode's path (planned at the episode's start under the tool's limits times
 /// `limits_scale`, the tilt following the minimum-jerk schedule) and its first action is the
 /// rate of the profile's clock: 1 plays the plan as planned, 0 holds the reference, 2 plays it
-/// twice as fast. The result still goes through the path speed's clamps. The policy starts as
-/// a careful driver and learns where the package allows more speed or needs less.
+/// twice as fast. The result still goes through the path speed's clamps. Training starts from
+/// the profile's careful driving and may speed it up or slow it down per package.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ProfileRateAction {

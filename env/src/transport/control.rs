@@ -34,6 +34,15 @@ pub enum TiltSchedule {
     MinimumJerk,
 }
 
+/// The path speed that plays `profile` from time `clock` at `rate` over the next interval `t`
+/// from `progress`: the plan's speed at the interval's end times the rate, plus a share of the
+/// reference's lag behind the plan.
+fn profile_speed(profile: &PathProfile, clock: f64, rate: f64, progress: f64, t: f64) -> f64 {
+    let (planned, _) = profile.at(clock);
+    let (_, speed) = profile.at(clock + rate * t);
+    (rate * speed + PROFILE_LAG_GAIN * (planned - progress) / t).max(0.0)
+}
+
 impl Transport {
     /// Sets how the nominal orientation tilts along the path (the recorded profile unless set).
     /// The place pose is the same under every schedule.
@@ -130,11 +139,8 @@ impl Transport {
             .zip(profiles)
             .flat_map(|(episode, profile)| {
                 let elapsed = episode.steps as f64 * t;
-                let (planned, _) = profile.at(elapsed);
-                let (_, speed) = profile.at(elapsed + t);
-                let lag = planned - episode.progress;
                 [
-                    ((speed + PROFILE_LAG_GAIN * lag / t).max(0.0)) as f32,
+                    profile_speed(profile, elapsed, 1.0, episode.progress, t) as f32,
                     0.0,
                     0.0,
                 ]
@@ -205,12 +211,8 @@ impl Transport {
         let rate = (action as f64)
             .clamp(0.0, p.max_rate)
             .clamp(previous - change, previous + change);
-        let clock = episode.profile_clock + rate * t;
-        let (planned, _) = plan.at(episode.profile_clock);
-        let (_, planned_speed) = plan.at(clock);
-        let lag = planned - episode.progress;
-        let speed = (rate * planned_speed + PROFILE_LAG_GAIN * lag / t).max(0.0);
-        (speed, rate, clock)
+        let speed = profile_speed(plan, episode.profile_clock, rate, episode.progress, t);
+        (speed, rate, episode.profile_clock + rate * t)
     }
 
     /// Turns copy `env`'s action into the reference for the next interval and commands the tool.
