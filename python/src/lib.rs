@@ -4,11 +4,13 @@
 //!
 //! Every array handed to Python is a fresh copy of the step's buffers (numpy owns it), and the
 //! step itself runs without the GIL, so other Python threads run while the environment steps.
+//! [`profile::ProfileReference`] is the reference a profile-rate policy drives on a robot.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 mod calibration;
+mod profile;
 
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -435,6 +437,7 @@ fn rust_step_seconds(
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<VecEnvCore>()?;
     m.add_class::<calibration::CalibrationObjective>()?;
+    m.add_class::<profile::ProfileReference>()?;
     m.add_function(wrap_pyfunction!(rust_rollout_digest, m)?)?;
     m.add_function(wrap_pyfunction!(rust_step_seconds, m)?)?;
     m.add("IDS", IDS.to_vec())?;

@@ -8,7 +8,7 @@ use rlpkg_sim::ToolCommand;
 
 use super::geometry::{quat, rotation_between, v3};
 use super::profile::{minimum_jerk, plan_path_profile, MotionLimits, PathProfile};
-use super::{sim_error, Episode, Transport, TransportPath};
+use super::{sim_error, Episode, ProfileRateAction, Transport, TransportLimits, TransportPath};
 use crate::{check_action_len, EnvError};
 
 /// The reference reaches the place pose when it is this close (m): braking to the end of the
@@ -34,13 +34,57 @@ pub enum TiltSchedule {
     MinimumJerk,
 }
 
-/// The path speed that plays `profile` from time `clock` at `rate` over the next interval `t`
-/// from `progress`: the plan's speed at the interval's end times the rate, plus a share of the
-/// reference's lag behind the plan.
-fn profile_speed(profile: &PathProfile, clock: f64, rate: f64, progress: f64, t: f64) -> f64 {
-    let (planned, _) = profile.at(clock);
-    let (_, speed) = profile.at(clock + rate * t);
-    (rate * speed + PROFILE_LAG_GAIN * (planned - progress) / t).max(0.0)
+impl PathProfile {
+    /// The path speed that plays this plan from time `clock_s` at `rate` over the next control
+    /// interval `interval_s` from `progress_m`: the plan's speed at the interval's end times the
+    /// rate, plus a share of the reference's lag behind the plan. What the profile baseline
+    /// commands at rate 1, and a profile-rate policy's action turns into.
+    pub fn path_speed(&self, clock_s: f64, rate: f64, progress_m: f64, interval_s: f64) -> f64 {
+        let (planned, _) = self.at(clock_s);
+        let (_, speed) = self.at(clock_s + rate * interval_s);
+        (rate * speed + PROFILE_LAG_GAIN * (planned - progress_m) / interval_s).max(0.0)
+    }
+}
+
+impl ProfileRateAction {
+    /// The clock rate a profile-rate action asks for: `action` within `[0, max_rate]`, then
+    /// within `max_rate_change_per_s` over `interval_s` of `previous_rate`.
+    pub fn rate(&self, action: f64, previous_rate: f64, interval_s: f64) -> f64 {
+        let change = self.max_rate_change_per_s * interval_s;
+        action
+            .clamp(0.0, self.max_rate)
+            .clamp(previous_rate - change, previous_rate + change)
+    }
+}
+
+impl TransportLimits {
+    /// The reference's path speed and progress after one control interval `interval_s` on a path
+    /// of `length_m`, from `progress_m` at `path_speed_m_s`, when `requested_m_s` is asked for:
+    /// the request within the largest speed, the acceleration limit, and the speed from which the
+    /// tool still brakes to rest at the path's end; progress by the trapezoidal rule, snapped to
+    /// the end within 1 mm. Returns `(speed, progress)`.
+    pub fn advance_path(
+        &self,
+        progress_m: f64,
+        path_speed_m_s: f64,
+        requested_m_s: f64,
+        length_m: f64,
+        interval_s: f64,
+    ) -> (f64, f64) {
+        let remaining = (length_m - progress_m).max(0.0);
+        let step = self.max_path_accel_m_s2 * interval_s;
+        // Never faster than the tool can still brake to rest at the place pose.
+        let brake = (2.0 * self.max_path_accel_m_s2 * remaining).sqrt();
+        let speed = requested_m_s
+            .clamp(0.0, self.max_path_speed_m_s)
+            .clamp(path_speed_m_s - step, path_speed_m_s + step)
+            .clamp(0.0, brake.max(0.0));
+        let mut progress = (progress_m + 0.5 * (path_speed_m_s + speed) * interval_s).min(length_m);
+        if length_m - progress < PATH_END_SNAP_M {
+            progress = length_m;
+        }
+        (speed, progress)
+    }
 }
 
 impl Transport {
@@ -140,7 +184,7 @@ impl Transport {
             .flat_map(|(episode, profile)| {
                 let elapsed = episode.steps as f64 * t;
                 [
-                    profile_speed(profile, elapsed, 1.0, episode.progress, t) as f32,
+                    profile.path_speed(elapsed, 1.0, episode.progress, t) as f32,
                     0.0,
                     0.0,
                 ]
@@ -206,12 +250,8 @@ impl Transport {
             return (speed, speed, episode.profile_clock);
         };
         let t = self.dt;
-        let change = p.max_rate_change_per_s * t;
-        let previous = episode.previous_action[0];
-        let rate = (action as f64)
-            .clamp(0.0, p.max_rate)
-            .clamp(previous - change, previous + change);
-        let speed = profile_speed(plan, episode.profile_clock, rate, episode.progress, t);
+        let rate = p.rate(action as f64, episode.previous_action[0], t);
+        let speed = plan.path_speed(episode.profile_clock, rate, episode.progress, t);
         (speed, rate, episode.profile_clock + rate * t)
     }
 
@@ -228,18 +268,8 @@ impl Transport {
         ];
         let mut episode = self.episodes[env];
         let length = self.paths[episode.path].length_m;
-        let remaining = (length - episode.progress).max(0.0);
-        let step = l.max_path_accel_m_s2 * t;
-        // Never faster than the tool can still brake to rest at the place pose.
-        let brake = (2.0 * l.max_path_accel_m_s2 * remaining).sqrt();
-        let speed = requested
-            .clamp(0.0, l.max_path_speed_m_s)
-            .clamp(episode.path_speed - step, episode.path_speed + step)
-            .clamp(0.0, brake.max(0.0));
-        let mut progress = (episode.progress + 0.5 * (episode.path_speed + speed) * t).min(length);
-        if length - progress < PATH_END_SNAP_M {
-            progress = length;
-        }
+        let (speed, progress) =
+            l.advance_path(episode.progress, episode.path_speed, requested, length, t);
         let target = self.reference_position(&episode, progress);
         let feedforward = self.paths[episode.path].tangent(progress) * speed;
         let state = self.states[env];

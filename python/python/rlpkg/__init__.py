@@ -4,15 +4,19 @@
   (CartPole-v1, Pendulum-v1, Transport-v0), with Gymnasium's autoreset modes;
 - :func:`make` -- one copy as a :class:`gymnasium.Env`;
 - :func:`register` -- registers ``rlpkg/<id>`` for ``gymnasium.make`` and ``gymnasium.make_vec``;
-- :mod:`rlpkg.sb3` -- an adapter to Stable-Baselines3's ``VecEnv`` interface.
+- :mod:`rlpkg.sb3` -- an adapter to Stable-Baselines3's ``VecEnv`` interface;
+- :class:`ProfileReference` -- on a robot, the reference a policy trained with
+  ``[transport.profile_rate]`` drives: the same motion profile along the cell's path, advanced by
+  each action's clock rate.
 """
 
 from rlpkg._env import RlpkgEnv, make
-from rlpkg._native import IDS, rust_rollout_digest
+from rlpkg._native import IDS, ProfileReference, rust_rollout_digest
 from rlpkg._vector import RlpkgVectorEnv, default_transport_config, make_vec
 
 __all__ = [
     "IDS",
+    "ProfileReference",
     "RlpkgEnv",
     "RlpkgVectorEnv",
     "default_transport_config",

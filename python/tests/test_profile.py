@@ -1,0 +1,114 @@
+"""rlpkg.ProfileReference: the reference a profile-rate policy drives on a robot."""
+
+import numpy as np
+import pytest
+
+import rlpkg
+from conftest import SMALL_TRANSPORT
+
+RATE_TABLE = """
+[transport.profile_rate]
+limits_scale = 1.0
+max_rate = 2.0
+max_rate_change_per_s = 4.0
+"""
+
+
+@pytest.fixture
+def rate_config(tmp_path):
+    path = tmp_path / "transport-rate.toml"
+    text = SMALL_TRANSPORT.read_text()
+    # The copy lives elsewhere: name the recordings by their absolute place.
+    recordings = SMALL_TRANSPORT.parent.parent.parent / "data" / "deformable-sim-real"
+    text = text.replace('"data/deformable-sim-real"', f'"{recordings}"')
+    path.write_text(text + RATE_TABLE)
+    return path
+
+
+def lift_and_move(points=200):
+    """A 0.1 m lift, then a 0.5 m straight move, tilting to 0.6 rad along it."""
+    lift = np.linspace(0.0, 0.1, points // 4, endpoint=False)
+    move = np.linspace(0.0, 0.5, points - points // 4)
+    positions = np.concatenate(
+        [
+            np.stack([np.zeros_like(lift), np.zeros_like(lift), lift], axis=1),
+            np.stack([move, np.zeros_like(move), np.full_like(move, 0.1)], axis=1),
+        ]
+    )
+    tilts = np.concatenate([np.zeros_like(lift), 0.6 * move / 0.5])
+    return positions, tilts
+
+
+def drive(reference, action, max_steps=400):
+    speeds, rates = [], []
+    for _ in range(max_steps):
+        _, speed = reference.step(action)
+        speeds.append(speed)
+        rates.append(reference.rate)
+        if reference.progress_m == reference.length_m and speed == 0.0:
+            break
+    return np.array(speeds), np.array(rates)
+
+
+def test_rate_one_plays_the_plan_to_rest_within_the_limits(rate_config):
+    reference = rlpkg.ProfileReference(rate_config, *lift_and_move())
+    assert reference.length_m == pytest.approx(0.6)
+    assert reference.rate == 1.0 and reference.clock_s == 0.0
+    speeds, rates = drive(reference, 1.0)
+    steps = len(speeds)
+    assert reference.progress_m == reference.length_m and speeds[-1] == 0.0
+    assert np.all(rates == 1.0)
+    assert reference.clock_s == pytest.approx(steps * reference.interval_s)
+    # Within the tool's speed and acceleration (transport-small.toml: 0.945 m/s, 5.2 m/s^2).
+    assert speeds.max() <= 0.945 + 1e-12
+    assert np.abs(np.diff(speeds)).max() <= 5.2 * reference.interval_s + 1e-12
+    # At rate 1 the reference keeps to the plan: done within a few intervals of its duration.
+    assert steps * reference.interval_s <= reference.duration_s + 4 * reference.interval_s
+    progress, speed = reference.planned(reference.duration_s)
+    assert progress == pytest.approx(reference.length_m) and speed == pytest.approx(0.0)
+    position, tilt = reference.pose(reference.length_m)
+    assert position == pytest.approx([0.5, 0.0, 0.1]) and tilt == pytest.approx(0.6)
+
+
+def test_the_rate_follows_the_action_within_its_change_limit(rate_config):
+    fast = rlpkg.ProfileReference(rate_config, *lift_and_move())
+    slow = rlpkg.ProfileReference(rate_config, *lift_and_move())
+    _, fast_rates = drive(fast, 5.0)
+    _, slow_rates = drive(slow, 0.5)
+    step = 4.0 * fast.interval_s
+    assert fast_rates[0] == pytest.approx(1.0 + step)
+    assert fast_rates.max() == 2.0  # clamped at max_rate
+    assert np.abs(np.diff(fast_rates)).max() <= step + 1e-12
+    assert slow_rates[-1] == 0.5
+    assert len(fast_rates) < len(slow_rates)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda p, t: (p[:, :2], t), "positions"),
+        (lambda p, t: (p[:1], t[:1]), "positions"),
+        (lambda p, t: (p, t[:-1]), "tilts"),
+        (lambda p, t: (np.where(np.arange(len(p))[:, None] == 3, np.nan, p), t), "positions[3]"),
+        (lambda p, t: (p, np.where(np.arange(len(t)) == 5, np.inf, t)), "tilts[5]"),
+        (lambda p, t: (np.concatenate([p[:2], p[1:]]), np.concatenate([t[:2], t[1:]])), "positions[2]"),
+    ],
+)
+def test_bad_paths_are_refused_by_name(rate_config, change, message):
+    positions, tilts = change(*lift_and_move())
+    with pytest.raises(ValueError, match=message.replace("[", r"\[")):
+        rlpkg.ProfileReference(rate_config, positions, tilts)
+
+
+def test_a_config_without_the_profile_rate_table_is_refused(tmp_path):
+    with pytest.raises(ValueError, match=r"transport\.profile_rate"):
+        rlpkg.ProfileReference(SMALL_TRANSPORT, *lift_and_move())
+    with pytest.raises(ValueError, match="transport-missing.toml"):
+        rlpkg.ProfileReference(tmp_path / "transport-missing.toml", *lift_and_move())
+
+
+def test_a_non_finite_action_is_refused(rate_config):
+    reference = rlpkg.ProfileReference(rate_config, *lift_and_move())
+    with pytest.raises(ValueError, match="action"):
+        reference.step(float("nan"))
+    assert reference.progress_m == 0.0
