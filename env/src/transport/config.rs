@@ -172,7 +172,8 @@ pub struct RewardWeights {
 /// package's yaw under the tool, material scales, start jitter) are drawn for each of the
 /// `settled_variants` states that `reset(seed)` settles once; every episode restores one of them
 /// at random (drawn from the copy's own stream), so the package need not be re-simulated at each
-/// reset. The target tilt and the goal jitter are drawn per episode.
+/// reset. The target tilt and the goal jitter are drawn per episode. With `replay`, training
+/// draws the packages whose episodes fail more often.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TransportRandomization {
@@ -185,6 +186,25 @@ pub struct TransportRandomization {
     pub start_jitter_m: f64,
     /// Package quantities per settled variant (the simulator's [`Randomization`]).
     pub package: Randomization,
+    /// Replay of the settled packages that fail (optional; see [`FailureReplay`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub replay: Option<FailureReplay>,
+}
+
+/// `[transport.randomization.replay]`: during training a share of the episodes starts from a
+/// settled package drawn in proportion to its recent failure rate instead of uniformly
+/// (prioritised level replay, Jiang et al. 2021), so the rare packages a policy fails on are
+/// trained on more often than their share of the randomisation. A package's failure rate is an
+/// exponential average over its finished episodes (1 for an episode that ends in anything but
+/// success, else 0), from 0 at each reset; evaluation mode
+/// ([`crate::Transport::set_retire_finished`]) draws uniformly.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FailureReplay {
+    /// Share of the episodes that start from a package drawn by its failure rate, in [0, 1].
+    pub share: f64,
+    /// Weight of a package's earlier failure rate when one of its episodes ends, in [0, 1).
+    pub memory: f64,
 }
 
 /// The message of an error in the `[transport]` table, naming the key: a table parsed apart from
@@ -589,6 +609,17 @@ impl TransportConfig {
             ));
         }
         check(s, "randomization.goal_jitter_m", r.goal_jitter_m, 0.0, 0.2)?;
+        if let Some(replay) = &r.replay {
+            check(s, "randomization.replay.share", replay.share, 0.0, 1.0)?;
+            if !(replay.memory.is_finite() && (0.0..1.0).contains(&replay.memory)) {
+                return Err(bad(
+                    s,
+                    "randomization.replay.memory",
+                    replay.memory,
+                    "a number in [0, 1)",
+                ));
+            }
+        }
         check(
             s,
             "randomization.start_jitter_m",
@@ -911,6 +942,30 @@ mod tests {
                 TransportConfig::from_toml_str(&(text.clone() + &rate.replace(from, to)), "t.toml")
                     .unwrap_err()
                     .to_string();
+            assert!(err.contains("t.toml") && err.contains(key), "{to}: {err}");
+        }
+        let replay = "\n[transport.randomization.replay]\nshare = 0.5\nmemory = 0.9\n";
+        assert!(TransportConfig::from_toml_str(&(text.clone() + replay), "t.toml").is_ok());
+        for (from, to, key) in [
+            ("share = 0.5", "share = 1.5", "randomization.replay.share"),
+            (
+                "memory = 0.9",
+                "memory = 1.0",
+                "randomization.replay.memory",
+            ),
+            (
+                "memory = 0.9",
+                "memory = nan",
+                "randomization.replay.memory",
+            ),
+            ("memory = 0.9", "memori = 0.9", "memori"),
+        ] {
+            let err = TransportConfig::from_toml_str(
+                &(text.clone() + &replay.replace(from, to)),
+                "t.toml",
+            )
+            .unwrap_err()
+            .to_string();
             assert!(err.contains("t.toml") && err.contains(key), "{to}: {err}");
         }
         let err = Transport::new(config(&text.replace("\"HHHHM\"", "\"NOPE\"")), 1, "t.toml")

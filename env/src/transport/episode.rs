@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use super::geometry::v3;
 use super::geometry::vec3_as_array;
+use super::reward::SUCCESS_COLUMN;
 use super::{sim_error, Transport, TransportPath};
 use crate::{env_rng, EnvError, StepBuffers, VecEnv};
 use rlpkg_vec_env::ResetCopies;
@@ -117,6 +118,25 @@ fn uniform_offset(rng: &mut ChaCha8Rng, r: f64, horizontal: bool) -> DVec3 {
             return p * r;
         }
     }
+}
+
+/// A settled variant for a training episode under failure replay: with probability `share`
+/// drawn in proportion to the variants' `failures` (uniformly while none has failed), else
+/// uniformly.
+fn replayed_variant(rng: &mut ChaCha8Rng, share: f64, failures: &[f64]) -> usize {
+    let total: f64 = failures.iter().sum();
+    if rng.random::<f64>() >= share || total <= 0.0 {
+        return rng.random_range(0..failures.len());
+    }
+    let mut left = rng.random::<f64>() * total;
+    for (k, &rate) in failures.iter().enumerate() {
+        if left < rate {
+            return k;
+        }
+        left -= rate;
+    }
+    // Rounding left a remainder: the last variant that has failed.
+    failures.iter().rposition(|&rate| rate > 0.0).unwrap_or(0)
 }
 
 /// The generator of settled variant `k` for `seed` (independent of the copies' streams).
@@ -311,6 +331,7 @@ impl Transport {
         }
         let (snapshots, held) = settle(&self.model, specs, self.config.settle_s)?;
         self.replaced_variants = held.iter().filter(|&&h| !h).count();
+        self.variant_failures = vec![0.0; held.len()];
         self.variants = snapshots
             .into_iter()
             .zip(starts)
@@ -336,7 +357,12 @@ impl Transport {
         }
         let r = &self.config.randomization;
         let rng = &mut self.rngs[env];
-        let variant = rng.random_range(0..self.variants.len());
+        let variant = match r.replay {
+            Some(replay) if !self.retire_finished => {
+                replayed_variant(rng, replay.share, &self.variant_failures)
+            }
+            _ => rng.random_range(0..self.variants.len()),
+        };
         let tilt = uniform(rng, r.target_tilt_deg[0], r.target_tilt_deg[1]).to_radians();
         let goal_jitter = uniform_offset(rng, r.goal_jitter_m, false);
         let path = nearest_path(&self.paths, tilt)
@@ -373,6 +399,7 @@ impl Transport {
         finished: &[usize],
         out: &mut StepBuffers,
     ) -> Result<(), EnvError> {
+        self.record_failures(finished);
         let mut restarting = Vec::with_capacity(finished.len());
         for &env in finished {
             if !self.retire_finished && self.autoreset.episode_ended(env) {
@@ -384,6 +411,27 @@ impl Transport {
             }
         }
         self.start_episodes(&restarting, out)
+    }
+
+    /// Updates the failure rates of the variants the training episodes of `finished` started
+    /// from (in copy order, so the rates do not depend on the thread count).
+    fn record_failures(&mut self, finished: &[usize]) {
+        let Some(replay) = self.config.randomization.replay else {
+            return;
+        };
+        if self.retire_finished {
+            return;
+        }
+        let width = self.info_names.len();
+        for &env in finished {
+            let failed = if self.info[env * width + SUCCESS_COLUMN] > 0.5 {
+                0.0
+            } else {
+                1.0
+            };
+            let rate = &mut self.variant_failures[self.episodes[env].variant];
+            *rate = replay.memory * *rate + (1.0 - replay.memory) * failed;
+        }
     }
 
     /// Next-step autoreset: the copies `waiting` (retired since their episode ended in the last
@@ -695,5 +743,67 @@ mod tests {
             masked.reset_copies(copies, &mut m),
             Err(EnvError::BatchLength { .. })
         ));
+    }
+
+    #[test]
+    fn failure_replay_draws_the_failing_variants_in_proportion_to_their_failure_rates() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut counts = [0usize; 4];
+        for _ in 0..4000 {
+            counts[replayed_variant(&mut rng, 1.0, &[0.0, 0.1, 0.3, 0.0])] += 1;
+        }
+        assert_eq!((counts[0], counts[3]), (0, 0), "{counts:?}");
+        assert!((2800..3200).contains(&counts[2]), "{counts:?}");
+        // No failure yet, or no share: uniform.
+        for (share, failures) in [(1.0, [0.0; 4]), (0.0, [0.0, 0.1, 0.3, 0.0])] {
+            let mut counts = [0usize; 4];
+            for _ in 0..4000 {
+                counts[replayed_variant(&mut rng, share, &failures)] += 1;
+            }
+            assert!(counts.iter().all(|c| (900..1100).contains(c)), "{counts:?}");
+        }
+    }
+
+    #[test]
+    fn failure_replay_learns_from_training_episodes_only_and_is_saved_with_the_state() {
+        // Episodes of 0.2 s that never reach the place pose: each ends timed out, a failure.
+        let text = test_table().replace("time_limit_s = 12.0", "time_limit_s = 0.2")
+            + "\n[transport.randomization.replay]\nshare = 1.0\nmemory = 0.5\n";
+        let hold = [0.0f32; 6];
+        let mut t = env(&text, 2);
+        let mut out = t.buffers();
+        t.try_reset(5, &mut out).unwrap();
+        assert_eq!(t.variant_failures, [0.0, 0.0]);
+        let started = [t.episodes[0].variant, t.episodes[1].variant];
+        for _ in 0..4 {
+            t.step(&hold, &mut out).unwrap();
+        }
+        assert!(
+            out.truncated.iter().all(|&x| x),
+            "both episodes end at the time limit"
+        );
+        let mut expected = [0.0; 2];
+        for v in started {
+            expected[v] = 0.5 * expected[v] + 0.5;
+        }
+        assert_eq!(t.variant_failures, expected);
+        // A saved state carries the rates: the copy draws the same variants from here on.
+        let mut copy = env(&text, 2);
+        copy.load_state(&t.save_state()).unwrap();
+        let mut copy_out = out.clone();
+        for _ in 0..8 {
+            t.step(&hold, &mut out).unwrap();
+            copy.step(&hold, &mut copy_out).unwrap();
+            assert_eq!(out, copy_out);
+        }
+        assert_eq!(t.variant_failures, copy.variant_failures);
+        // Evaluation mode neither learns from its episodes nor draws by failure rate.
+        let before = t.variant_failures.clone();
+        t.set_retire_finished(true);
+        for _ in 0..4 {
+            t.step(&hold, &mut out).unwrap();
+        }
+        assert!(out.truncated.iter().any(|&x| x));
+        assert_eq!(t.variant_failures, before);
     }
 }

@@ -80,7 +80,7 @@ use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{CupLoad, EnvObservation, HealthEvent, Model, SceneConfig, SealEvent, Simulator};
 
 pub use config::{
-    load_scene, FailureLimits, ObservationMode, ProfileRateAction, RewardWeights,
+    load_scene, FailureLimits, FailureReplay, ObservationMode, ProfileRateAction, RewardWeights,
     SuccessTolerances, TransportConfig, TransportLimits, TransportRandomization, LIMIT_HEADROOM,
 };
 pub use control::TiltSchedule;
@@ -138,6 +138,9 @@ pub struct Transport {
     fallback: Variant,
     /// Randomised variants of the last reset replaced by `fallback`.
     replaced_variants: usize,
+    /// Each variant's failure rate over its finished training episodes
+    /// (`[transport.randomization.replay]`; zeros without it).
+    variant_failures: Vec<f64>,
     /// Each copy's current episode.
     episodes: Vec<Episode>,
     rngs: Vec<ChaCha8Rng>,
@@ -226,6 +229,7 @@ impl Transport {
             variants: Vec::new(),
             fallback,
             replaced_variants: 0,
+            variant_failures: Vec::new(),
             spec,
             model,
             sim,

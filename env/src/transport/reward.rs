@@ -146,6 +146,9 @@ struct StepMotion {
     peak_utilisation: f64,
 }
 
+/// Column of `episode/success` in the info row: after the reward terms.
+pub(super) const SUCCESS_COLUMN: usize = REWARD_TERM_NAMES.len();
+
 /// The info row of one step, in [`info_names`] order.
 fn info_row(
     terms: &RewardTerms,

@@ -26,6 +26,9 @@ struct SavedTransport {
     /// Each copy's sensors (`observation = "sensors"` only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     sensors: Option<Vec<CopySensors>>,
+    /// Each variant's failure rate (`[transport.randomization.replay]` only).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    variant_failures: Vec<f64>,
 }
 
 /// Numbers per copy in the flat layout's reals.
@@ -121,6 +124,7 @@ impl SavedTransport {
             copies,
             variants,
             sensors: None,
+            variant_failures: Vec::new(),
         })
     }
 }
@@ -136,6 +140,10 @@ impl Transport {
                 .collect(),
             variants: self.variants.clone(),
             sensors: self.sensors.as_ref().map(|s| s.copies.clone()),
+            variant_failures: match self.config.randomization.replay {
+                Some(_) => self.variant_failures.clone(),
+                None => Vec::new(),
+            },
         };
         EnvState {
             reals: Vec::new(),
@@ -202,6 +210,10 @@ impl Transport {
         }
         self.episodes = saved.episodes;
         self.rngs = saved.rngs.iter().map(rng_from_words).collect();
+        self.variant_failures = match saved.variant_failures.len() == saved.variants.len() {
+            true => saved.variant_failures,
+            false => vec![0.0; saved.variants.len()],
+        };
         self.variants = saved.variants;
         self.retired.fill(false);
         // The plans follow from the episodes (planned the same way at their start).
