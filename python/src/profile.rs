@@ -175,6 +175,21 @@ impl ProfileReference {
         Ok((progress, speed))
     }
 
+    /// The tilt offsets about world x and z (rad) the policy's second and third actions give at
+    /// the reference's progress: within `[transport.limits].max_tilt_offset_deg`, shrinking to
+    /// zero over the path's last `tilt_offset_fade_m` when the configuration sets it.
+    fn tilt_offsets(&self, action_x: f64, action_z: f64) -> PyResult<(f64, f64)> {
+        if !(action_x.is_finite() && action_z.is_finite()) {
+            return Err(value_error(format!(
+                "tilt offsets ({action_x}, {action_z}): expected finite angles (rad)"
+            )));
+        }
+        let bound = self
+            .limits
+            .tilt_offset_bound(self.path.length_m() - self.progress_m);
+        Ok((action_x.clamp(-bound, bound), action_z.clamp(-bound, bound)))
+    }
+
     /// The reference position (m) and nominal tilt (rad) at arc length `progress_m`.
     fn pose(&self, progress_m: f64) -> ([f64; 3], f64) {
         let (position, tilt) = self.path.pose(progress_m);

@@ -112,3 +112,27 @@ def test_a_non_finite_action_is_refused(rate_config):
     with pytest.raises(ValueError, match="action"):
         reference.step(float("nan"))
     assert reference.progress_m == 0.0
+    with pytest.raises(ValueError, match="tilt offsets"):
+        reference.tilt_offsets(0.1, float("inf"))
+
+
+def test_tilt_offsets_are_bounded_and_fade_over_the_last_stretch(rate_config):
+    full = np.radians(20.0)
+    reference = rlpkg.ProfileReference(rate_config, *lift_and_move())
+    assert reference.tilt_offsets(1.0, -0.1) == (full, -0.1)
+    faded = rate_config.with_name("transport-fade.toml")
+    faded.write_text(
+        rate_config.read_text().replace(
+            "max_tilt_offset_deg = 20.0", "max_tilt_offset_deg = 20.0\ntilt_offset_fade_m = 0.1"
+        )
+    )
+    reference = rlpkg.ProfileReference(faded, *lift_and_move())
+    bounds = []
+    while not (reference.progress_m == reference.length_m and reference.path_speed_m_s == 0.0):
+        reference.step(1.0)
+        remaining = reference.length_m - reference.progress_m
+        x, z = reference.tilt_offsets(1.0, -1.0)
+        assert x == -z == pytest.approx(full * min(1.0, remaining / 0.1))
+        bounds.append(x)
+    assert bounds[0] == full and bounds[-1] == 0.0
+    assert 0.0 < min(b for b in bounds if b > 0.0) < full

@@ -111,6 +111,11 @@ pub struct TransportLimits {
     /// Largest tilt of the tool away from the path's nominal orientation, about world x and z
     /// (degrees).
     pub max_tilt_offset_deg: f64,
+    /// Distance before the path's end over which the largest tilt offset shrinks linearly to
+    /// zero (m; optional, in (0, 1]): the tool arrives at the place orientation whatever the
+    /// policy asks, and its tilting stops stirring the object once it is there.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt_offset_fade_m: Option<f64>,
     /// The robot's largest angular speed (rad/s); at most 1.5 x the recordings' peak (2.07 rad/s).
     pub max_angular_speed_rad_s: f64,
     /// The robot's largest angular acceleration (rad/s²).
@@ -551,6 +556,9 @@ impl TransportConfig {
             0.0,
             45.0,
         )?;
+        if let Some(fade) = l.tilt_offset_fade_m {
+            check(s, "limits.tilt_offset_fade_m", fade, 1e-3, 1.0)?;
+        }
         check(
             s,
             "limits.max_angular_speed_rad_s",
@@ -967,6 +975,18 @@ mod tests {
             .unwrap_err()
             .to_string();
             assert!(err.contains("t.toml") && err.contains(key), "{to}: {err}");
+        }
+        let fade = |value: &str| {
+            let line = format!("max_tilt_offset_deg = 20.0\ntilt_offset_fade_m = {value}");
+            TransportConfig::from_toml_str(
+                &text.replace("max_tilt_offset_deg = 20.0", &line),
+                "t.toml",
+            )
+        };
+        assert_eq!(fade("0.15").unwrap().limits.tilt_offset_fade_m, Some(0.15));
+        for value in ["0.0", "1.5", "nan"] {
+            let err = fade(value).unwrap_err().to_string();
+            assert!(err.contains("limits.tilt_offset_fade_m"), "{value}: {err}");
         }
         let err = Transport::new(config(&text.replace("\"HHHHM\"", "\"NOPE\"")), 1, "t.toml")
             .err()

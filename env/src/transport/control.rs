@@ -58,6 +58,16 @@ impl ProfileRateAction {
 }
 
 impl TransportLimits {
+    /// The largest tilt offset (rad) `remaining_m` before the path's end: `max_tilt_offset_deg`,
+    /// shrinking linearly to zero over the last `tilt_offset_fade_m` when that is set.
+    pub fn tilt_offset_bound(&self, remaining_m: f64) -> f64 {
+        let full = self.max_tilt_offset_deg.to_radians();
+        match self.tilt_offset_fade_m {
+            Some(fade) => full * (remaining_m / fade).clamp(0.0, 1.0),
+            None => full,
+        }
+    }
+
     /// The reference's path speed and progress after one control interval `interval_s` on a path
     /// of `length_m`, from `progress_m` at `path_speed_m_s`, when `requested_m_s` is asked for:
     /// the request within the largest speed, the acceleration limit, and the speed from which the
@@ -260,16 +270,16 @@ impl Transport {
         let (requested, first, clock) = self.path_speed_request(env, action[0]);
         let l = &self.config.limits;
         let t = self.dt;
-        let tilt = l.max_tilt_offset_deg.to_radians();
+        let mut episode = self.episodes[env];
+        let length = self.paths[episode.path].length_m;
+        let (speed, progress) =
+            l.advance_path(episode.progress, episode.path_speed, requested, length, t);
+        let tilt = l.tilt_offset_bound(length - progress);
         let a = [
             first,
             (action[1] as f64).clamp(-tilt, tilt),
             (action[2] as f64).clamp(-tilt, tilt),
         ];
-        let mut episode = self.episodes[env];
-        let length = self.paths[episode.path].length_m;
-        let (speed, progress) =
-            l.advance_path(episode.progress, episode.path_speed, requested, length, t);
         let target = self.reference_position(&episode, progress);
         let feedforward = self.paths[episode.path].tangent(progress) * speed;
         let state = self.states[env];
@@ -304,7 +314,7 @@ impl Transport {
 
 #[cfg(test)]
 mod tests {
-    use crate::transport::test_support::{env, info, test_table};
+    use crate::transport::test_support::{column, env, info, test_table};
     use crate::VecEnv;
 
     #[test]
@@ -377,6 +387,48 @@ mod tests {
             let fastest = speeds[copy].iter().fold(0.0f64, |a, &b| a.max(b));
             assert!(fastest <= profile.peak_speed_m_s * 1.05, "{fastest}");
         }
+    }
+
+    #[test]
+    fn the_tilt_offset_fades_to_zero_over_the_last_stretch_of_the_path() {
+        let fade = 0.1;
+        let text = test_table().replace(
+            "max_tilt_offset_deg = 20.0",
+            &format!("max_tilt_offset_deg = 3.0\ntilt_offset_fade_m = {fade}"),
+        );
+        let mut t = env(&text, 1);
+        let mut out = t.buffers();
+        t.set_retire_finished(true);
+        t.try_reset(3, &mut out).unwrap();
+        let length = t.paths[t.episodes[0].path].length_m;
+        // Small tilts at a moderate speed, which keep the seal, with the bound just above them.
+        let (asked, full) = (0.05f32, 3f64.to_radians());
+        let (mut faded, mut steps) = (0, 0);
+        while t.episodes[0].progress < length && steps < 200 {
+            t.step(&[0.3, asked, -asked], &mut out).unwrap();
+            steps += 1;
+            let episode = &t.episodes[0];
+            let remaining = length - episode.progress;
+            let [_, x, z] = episode.previous_action;
+            assert_eq!(x, -z);
+            assert_eq!(
+                column(&t, &out, 0, "previous_tilt_offset_x", false),
+                x as f32
+            );
+            if remaining >= fade {
+                assert_eq!(x, asked as f64, "{remaining} m before the end");
+            } else {
+                assert!(
+                    x <= full * remaining / fade + 1e-12,
+                    "{x} rad {remaining} m before the end"
+                );
+                faded += 1;
+            }
+        }
+        // The reference arrived with the tool's offsets gone, after a few faded steps.
+        assert_eq!(t.episodes[0].progress, length, "{:?}", t.info());
+        assert_eq!(t.episodes[0].previous_action[1], 0.0);
+        assert!(faded >= 2, "{faded} faded steps");
     }
 
     #[test]
