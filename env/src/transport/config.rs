@@ -112,7 +112,7 @@ pub struct TransportLimits {
     /// (degrees).
     pub max_tilt_offset_deg: f64,
     /// Distance before the path's end over which the largest tilt offset shrinks linearly to
-    /// zero (m; optional, in (0, 1]): the tool arrives at the place orientation whatever the
+    /// zero (m; optional, in [0.001, 1]): the tool arrives at the place orientation whatever the
     /// policy asks, and its tilting stops stirring the object once it is there.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tilt_offset_fade_m: Option<f64>,

@@ -15,7 +15,8 @@
 //! `path_speed` (m/s, [0, `max_path_speed_m_s`]; its change is limited to `max_path_accel_m_s2`,
 //! and it is capped so the tool can still stop at the place pose), `tilt_offset_x` and
 //! `tilt_offset_z` (rad, ±`max_tilt_offset_deg`: rotation of the tool about world x and z away
-//! from the path's nominal orientation). Values outside the bounds are clamped to them. A
+//! from the path's nominal orientation; the bound shrinks to zero over the path's last
+//! `tilt_offset_fade_m` when that is set). Values outside the bounds are clamped to them. A
 //! tracking controller turns the reference pose into a twist command
 //! ([`rlpkg_sim::ToolCommand::Twist`]) within the robot limits (`[transport.limits]`, which
 //! replace the scene's `[tool_limits]`).
