@@ -92,6 +92,13 @@ fn the_exported_transport_policy_evaluates_exactly_as_its_checkpoint() {
         message.contains("--set transport.time_limit_s=-1") && message.contains("time_limit_s"),
         "{message}"
     );
+    // A grasp check the scene's own package cannot pass is refused, naming the key.
+    let mut strict = by_file.clone();
+    strict.extend(["--set", "transport.grasp_min_vacuum_ratio=0.98"]);
+    let refused = rlpkg(&strict, dir.path());
+    assert_eq!(refused.status.code(), Some(2));
+    let message = String::from_utf8_lossy(&refused.stderr);
+    assert!(message.contains("grasp_min_vacuum_ratio"), "{message}");
     let outputs = dir.path().join("runs/transport-sensors/policy-eval");
     for name in ["summary.json", "episode-0.png", "episode-0.gif"] {
         assert!(outputs.join(name).exists(), "{name}");

@@ -55,13 +55,14 @@ pub struct TrainArgs {
 
 /// Prints how many of the randomised packages the environment's reset settled were replaced by
 /// the unrandomised one (draws the scene's solver cannot carry at its step: not sealed, or
-/// frozen), for environments that report it.
+/// frozen; or grasps the grasp check refuses), for environments that report it.
 fn report_reset(trainer: &Trainer) {
     let counts = trainer.reset_counts();
     let count = |name: &str| counts.iter().find(|(n, _)| n == name).map(|(_, c)| *c);
     if let (Some(settled), Some(replaced)) = (count("settled_variants"), count("replaced_variants"))
     {
-        println!("{}", replaced_packages_line(settled, replaced));
+        let weak = count("weak_grasps").unwrap_or(0);
+        println!("{}", replaced_packages_line(settled, replaced, weak));
     }
 }
 

@@ -37,6 +37,13 @@ pub struct TransportConfig {
     pub settled_variants: usize,
     /// Extra settling after the scene's rest period before the snapshot is taken (s).
     pub settle_s: f64,
+    /// The cell's grasp check (optional), as a vacuum switch confirms a pick before the move: a
+    /// settled package counts as grasped only if every cup holds at least this fraction of the
+    /// supply vacuum under the sensors' leak model ([`super::sensors::cup_vacuum_pa`]: 0.98 for a
+    /// sound, unloaded seal, about 0.75 at the failure load); a package below it is replaced by
+    /// the unrandomised one, as an unsealed one is. In [0.5, 0.98].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grasp_min_vacuum_ratio: Option<f64>,
     /// Limits of the action and of the robot.
     pub limits: TransportLimits,
     /// When an episode counts as a success.
@@ -534,6 +541,9 @@ impl TransportConfig {
             ));
         }
         check(s, "settle_s", self.settle_s, 0.0, 10.0)?;
+        if let Some(ratio) = self.grasp_min_vacuum_ratio {
+            check(s, "grasp_min_vacuum_ratio", ratio, 0.5, 0.98)?;
+        }
         let l = &self.limits;
         check(
             s,
@@ -987,6 +997,15 @@ mod tests {
         for value in ["0.0", "1.5", "nan"] {
             let err = fade(value).unwrap_err().to_string();
             assert!(err.contains("limits.tilt_offset_fade_m"), "{value}: {err}");
+        }
+        let grasp = |value: &str| {
+            let line = format!("settle_s = 0.5\ngrasp_min_vacuum_ratio = {value}\n");
+            TransportConfig::from_toml_str(&text.replace("settle_s = 0.5\n", &line), "t.toml")
+        };
+        assert_eq!(grasp("0.85").unwrap().grasp_min_vacuum_ratio, Some(0.85));
+        for value in ["0.4", "0.99", "nan"] {
+            let err = grasp(value).unwrap_err().to_string();
+            assert!(err.contains("grasp_min_vacuum_ratio"), "{value}: {err}");
         }
         let err = Transport::new(config(&text.replace("\"HHHHM\"", "\"NOPE\"")), 1, "t.toml")
             .err()

@@ -8,7 +8,7 @@ use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{
-    EnvObservation, EnvSnapshot, EpisodeSpec, Model, Placement, SceneConfig, Simulator,
+    CupLoad, EnvObservation, EnvSnapshot, EpisodeSpec, Model, Placement, SceneConfig, Simulator,
     ToolTrajectory,
 };
 use serde::{Deserialize, Serialize};
@@ -16,7 +16,8 @@ use serde::{Deserialize, Serialize};
 use super::geometry::v3;
 use super::geometry::vec3_as_array;
 use super::reward::SUCCESS_COLUMN;
-use super::{sim_error, Transport, TransportPath};
+use super::sensors::cup_vacuum_pa;
+use super::{sim_error, Transport, TransportPath, UTILISATION_CEILING};
 use crate::{env_rng, EnvError, StepBuffers, VecEnv};
 use rlpkg_vec_env::ResetCopies;
 
@@ -189,42 +190,91 @@ pub(super) fn base_spec(scene: &SceneConfig, path: &TransportPath) -> EpisodeSpe
     }
 }
 
-/// Simulates `specs` through the rest period and `settle_s`; returns their snapshots and
-/// whether every cup of each still holds a healthy package.
+/// How a settled package ended its settling.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Settled {
+    /// Every cup still holds a healthy (not frozen) package.
+    pub sealed: bool,
+    /// The lowest vacuum over the package's cups as a fraction of the supply vacuum, under the
+    /// sensors' leak model (what the cell's vacuum switch reads at the pick).
+    pub grasp_vacuum_ratio: f64,
+}
+
+impl Settled {
+    /// Whether the package is sealed and passes the grasp check `min_vacuum_ratio` (if any).
+    pub fn grasped(&self, min_vacuum_ratio: Option<f64>) -> bool {
+        self.sealed && min_vacuum_ratio.is_none_or(|min| self.grasp_vacuum_ratio >= min)
+    }
+}
+
+/// Simulates `specs` through the rest period and `settle_s`; returns their snapshots and how
+/// each ended its settling.
 fn settle(
     model: &Arc<Model>,
     specs: Vec<EpisodeSpec>,
     settle_s: f64,
-) -> Result<(Vec<EnvSnapshot>, Vec<bool>), EnvError> {
+) -> Result<(Vec<EnvSnapshot>, Vec<Settled>), EnvError> {
     let mut sim = Simulator::new(model.clone(), specs).map_err(sim_error)?;
     let seconds = model.config.cups.rest_time_s as f64 + settle_s;
     sim.step((seconds / sim.dt() as f64).round() as u64);
     let mut states = vec![EnvObservation::default(); sim.num_envs()];
     sim.read_states(&mut states).map_err(sim_error)?;
-    let cups = model.num_cups() as u32;
-    let held = states
+    let cups = model.num_cups();
+    let mut loads = vec![CupLoad::default(); sim.num_envs() * cups];
+    sim.read_cup_loads(&mut loads).map_err(sim_error)?;
+    let settled = states
         .iter()
-        .map(|s| !s.frozen && s.cups_attached == cups)
+        .zip(loads.chunks(cups))
+        .map(|(s, loads)| Settled {
+            sealed: !s.frozen && s.cups_attached == cups as u32,
+            grasp_vacuum_ratio: loads
+                .iter()
+                .map(|l| {
+                    // Supply 1: the ratio. A NaN utilisation (a diverged package) reads as open.
+                    let u = l.utilisation.min(UTILISATION_CEILING) as f64;
+                    cup_vacuum_pa(1.0, l.attached, l.sealed_fraction as f64, u)
+                })
+                .fold(f64::INFINITY, f64::min),
+        })
         .collect();
-    Ok(((0..sim.num_envs()).map(|k| sim.snapshot(k)).collect(), held))
+    Ok((
+        (0..sim.num_envs()).map(|k| sim.snapshot(k)).collect(),
+        settled,
+    ))
 }
 
 /// The unrandomised package `base` on `path` settled for `settle_s` after the rest period: it
-/// checks that the scene's cups seal, and stands in for a randomised variant whose cups do not.
+/// checks that the scene's cups seal (and pass the grasp check `min_vacuum_ratio`, if any), and
+/// stands in for a randomised variant whose cups do not.
 pub(super) fn settle_unrandomised(
     model: &Arc<Model>,
     base: EpisodeSpec,
     path: &TransportPath,
     settle_s: f64,
+    min_vacuum_ratio: Option<f64>,
 ) -> Result<Variant, EnvError> {
-    let (mut settled, held) = settle(model, vec![base], settle_s)?;
-    if !held[0] {
+    let (mut settled, how) = settle(model, vec![base], settle_s)?;
+    let how = how[0];
+    if !how.sealed {
         return Err(EnvError::ConfigParse {
             file: "[transport]".into(),
             message: format!(
                 "the package of recording {} does not stay sealed by all cups in this scene \
                  after the rest period (seal settings too weak for its mass?)",
                 path.id
+            ),
+        });
+    }
+    if !how.grasped(min_vacuum_ratio) {
+        return Err(EnvError::ConfigParse {
+            file: "[transport]".into(),
+            message: format!(
+                "grasp_min_vacuum_ratio = {}: the unrandomised package of recording {} holds \
+                 only {:.3} of the supply vacuum at its weakest cup after the rest period; \
+                 expected a ratio the scene's own package passes",
+                min_vacuum_ratio.unwrap_or_default(),
+                path.id,
+                how.grasp_vacuum_ratio
             ),
         });
     }
@@ -287,10 +337,22 @@ impl Transport {
         Ok(())
     }
 
-    /// How many randomised packages of the last reset did not stay sealed and were replaced by
-    /// the unrandomised one.
+    /// How many randomised packages of the last reset did not stay sealed (or failed the grasp
+    /// check) and were replaced by the unrandomised one.
     pub fn replaced_variants(&self) -> usize {
         self.replaced_variants
+    }
+
+    /// How many of the [`Transport::replaced_variants`] stayed sealed but failed the grasp check
+    /// (`grasp_min_vacuum_ratio`).
+    pub fn weak_grasps(&self) -> usize {
+        self.weak_grasps
+    }
+
+    /// Each randomised package of the last reset: the lowest vacuum over its cups after settling,
+    /// as a fraction of the supply vacuum (what the grasp check compares).
+    pub fn grasp_vacuum_ratios(&self) -> &[f64] {
+        &self.grasp_vacuum_ratios
     }
 
     /// What was drawn for copy `env`'s current episode (after [`VecEnv::reset`]).
@@ -329,8 +391,15 @@ impl Transport {
             specs.push(spec);
             starts.push(start);
         }
-        let (snapshots, held) = settle(&self.model, specs, self.config.settle_s)?;
+        let (snapshots, settled) = settle(&self.model, specs, self.config.settle_s)?;
+        let min_ratio = self.config.grasp_min_vacuum_ratio;
+        let held: Vec<bool> = settled.iter().map(|s| s.grasped(min_ratio)).collect();
         self.replaced_variants = held.iter().filter(|&&h| !h).count();
+        self.weak_grasps = settled
+            .iter()
+            .filter(|s| s.sealed && !s.grasped(min_ratio))
+            .count();
+        self.grasp_vacuum_ratios = settled.iter().map(|s| s.grasp_vacuum_ratio).collect();
         self.variant_failures = vec![0.0; held.len()];
         self.variants = snapshots
             .into_iter()
@@ -552,6 +621,52 @@ mod tests {
         assert_eq!(out, out_again, "same seed, two threads: bit-identical");
         let (other, _) = run(1, 8);
         assert_ne!(conditions, other);
+    }
+
+    #[test]
+    fn the_grasp_check_replaces_exactly_the_packages_whose_cups_read_a_weak_vacuum() {
+        // Supply vacuums below the scene's own 20 kPa load the randomised packages' seals more
+        // than the unrandomised one's, which must pass the check to stand in for them.
+        let text = test_table().replace(
+            "package_yaw_deg = [-10.0, 10.0]",
+            "package_yaw_deg = [-10.0, 10.0]\nvacuum_kpa = [8.0, 15.0]",
+        );
+        let with_check = |ratio: f64| {
+            text.replace(
+                "settle_s = 0.5\n",
+                &format!("settle_s = 0.5\ngrasp_min_vacuum_ratio = {ratio}\n"),
+            )
+        };
+        let reset = |text: &str| {
+            let mut t = env(text, 2);
+            let mut out = t.buffers();
+            t.try_reset(7, &mut out).unwrap();
+            (t, out)
+        };
+        let (free, free_out) = reset(&text);
+        assert_eq!(free.replaced_variants(), 0);
+        let ratios = free.grasp_vacuum_ratios().to_vec();
+        // Sealed cups read between the failure load's 0.75 and a sound, unloaded seal's 0.98.
+        assert!(
+            ratios.len() == 2 && ratios.iter().all(|r| (0.75..0.981).contains(r)),
+            "{ratios:?}"
+        );
+        let (weaker, stronger) = (ratios[0].min(ratios[1]), ratios[0].max(ratios[1]));
+        assert!(stronger - weaker > 1e-4, "{ratios:?}");
+        // A check both packages pass changes nothing, bit for bit.
+        let (loose, loose_out) = reset(&with_check((weaker - 1e-3).max(0.5)));
+        assert_eq!((loose.replaced_variants(), loose.weak_grasps()), (0, 0));
+        assert_eq!(loose_out, free_out);
+        // Between the two: the weaker grasp is replaced, and only it.
+        let (strict, _) = reset(&with_check((weaker + stronger) / 2.0));
+        assert_eq!((strict.replaced_variants(), strict.weak_grasps()), (1, 1));
+        assert_eq!(strict.grasp_vacuum_ratios(), &ratios[..]);
+        // A check the scene's own package fails is refused by name.
+        let err = Transport::new(config(&with_check(0.98)), 1, "test.toml")
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("grasp_min_vacuum_ratio = 0.98"), "{err}");
     }
 
     #[test]

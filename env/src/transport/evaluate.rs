@@ -305,7 +305,10 @@ impl OutcomeSummary {
 /// An evaluation's `episodes.csv`: one row per driver and episode, with what the episode drew
 /// (settled package, path, target tilt, object mass, supply vacuum, every material parameter of
 /// the package) beside how it ended, so that failures can be traced to the packages and
-/// conditions behind them.
+/// conditions behind them. `grasp_vacuum_ratio` is the randomised package's lowest cup vacuum
+/// over the supply after settling ([`Transport::grasp_vacuum_ratios`], what the grasp check
+/// compares; for a replaced package its own, not the stand-in's; empty when the settled
+/// packages were restored from a saved state).
 #[derive(Debug, Clone)]
 pub struct EpisodeTable {
     csv: String,
@@ -317,7 +320,7 @@ impl Default for EpisodeTable {
         Self {
             csv: format!(
                 "driver,episode,package,path,target_tilt_deg,object_mass_kg,vacuum_kpa,{params},\
-                 ending,time_s,object_motion_m,peak_seal_utilisation\n"
+                 grasp_vacuum_ratio,ending,time_s,object_motion_m,peak_seal_utilisation\n"
             ),
         }
     }
@@ -338,13 +341,16 @@ impl EpisodeTable {
                 .entries()
                 .map(|(_, value, ..)| value.to_string());
             self.csv += &format!(
-                "{driver},{episode},{},{},{:.3},{},{},{},{},{:.4},{:.6},{:.6}\n",
+                "{driver},{episode},{},{},{:.3},{},{},{},{},{},{:.4},{:.6},{:.6}\n",
                 o.package,
                 drawn.path_id,
                 drawn.target_tilt_rad.to_degrees(),
                 drawn.object_mass_kg,
                 spec.vacuum_kpa.unwrap_or(scene_vacuum),
                 params.join(","),
+                env.grasp_vacuum_ratios()
+                    .get(o.package)
+                    .map_or(String::new(), |r| format!("{r:.4}")),
                 o.ending.name(),
                 o.time_s,
                 o.object_motion_m,
@@ -492,6 +498,12 @@ mod tests {
             assert_eq!(mass, drawn.object_mass_kg);
             let k_spr_e: f32 = row[column("k_spr_e")].parse().unwrap();
             assert_eq!(k_spr_e, t.simulator().spec(copy).params.k_spr_e);
+            let grasp: f64 = row[column("grasp_vacuum_ratio")].parse().unwrap();
+            let settled = t.grasp_vacuum_ratios()[drawn.variant];
+            assert!(
+                (grasp - settled).abs() < 1e-4 && grasp < 0.981,
+                "{grasp} {settled}"
+            );
             assert_eq!(row[column("ending")], "timed_out");
         }
         // A name with quotes and commas (an optimised command's folder) stays one CSV field.

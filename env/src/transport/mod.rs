@@ -139,6 +139,10 @@ pub struct Transport {
     fallback: Variant,
     /// Randomised variants of the last reset replaced by `fallback`.
     replaced_variants: usize,
+    /// Of those, the ones that stayed sealed but failed the grasp check.
+    weak_grasps: usize,
+    /// Each randomised variant's lowest cup vacuum over the supply after settling.
+    grasp_vacuum_ratios: Vec<f64>,
     /// Each variant's failure rate over its finished training episodes
     /// (`[transport.randomization.replay]`; zeros without it).
     variant_failures: Vec<f64>,
@@ -200,8 +204,13 @@ impl Transport {
         }
         let model = Arc::new(Model::new(&scene).map_err(sim_error)?);
         let base = episode::base_spec(&scene, &paths[0]);
-        let fallback =
-            episode::settle_unrandomised(&model, base.clone(), &paths[0], config.settle_s)?;
+        let fallback = episode::settle_unrandomised(
+            &model,
+            base.clone(),
+            &paths[0],
+            config.settle_s,
+            config.grasp_min_vacuum_ratio,
+        )?;
         let sim = Simulator::new(model.clone(), vec![base; num_envs]).map_err(sim_error)?;
         let num_cups = model.num_cups();
         let materials = observe::randomised_materials(&config);
@@ -230,6 +239,8 @@ impl Transport {
             variants: Vec::new(),
             fallback,
             replaced_variants: 0,
+            weak_grasps: 0,
+            grasp_vacuum_ratios: Vec::new(),
             variant_failures: Vec::new(),
             spec,
             model,
@@ -350,12 +361,14 @@ impl VecEnv for Transport {
         self.restart_copies(copies, out)
     }
 
-    /// `settled_variants` and `replaced_variants`: the randomised packages of the last reset
-    /// and how many of them were replaced by the unrandomised one (not sealed, or frozen).
+    /// `settled_variants`, `replaced_variants` and `weak_grasps`: the randomised packages of the
+    /// last reset, how many of them were replaced by the unrandomised one (not sealed, frozen,
+    /// or failing the grasp check), and how many of those failed only the grasp check.
     fn reset_counts(&self) -> Vec<(String, usize)> {
         vec![
             ("settled_variants".into(), self.variants.len()),
             ("replaced_variants".into(), self.replaced_variants),
+            ("weak_grasps".into(), self.weak_grasps),
         ]
     }
 

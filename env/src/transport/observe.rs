@@ -498,7 +498,8 @@ mod tests {
             t.reset_counts(),
             [
                 ("settled_variants".to_string(), 2),
-                ("replaced_variants".to_string(), t.replaced_variants())
+                ("replaced_variants".to_string(), t.replaced_variants()),
+                ("weak_grasps".to_string(), 0)
             ]
         );
         let scene_kpa = t.model.config.seal.vacuum_kpa;

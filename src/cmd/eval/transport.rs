@@ -33,10 +33,12 @@ struct TransportReport {
     update: Option<usize>,
     global_step: Option<u64>,
     seed: u64,
-    /// Randomised packages the episodes start from, and how many of them the scene's solver could
-    /// not carry (not sealed or frozen after settling) and were replaced by the unrandomised one.
+    /// Randomised packages the episodes start from, how many of them the scene's solver could not
+    /// carry (not sealed or frozen after settling) or the grasp check refused and were replaced by
+    /// the unrandomised one, and how many of those the grasp check refused.
     settled_packages: usize,
     replaced_packages: usize,
+    weak_grasps: usize,
     /// Recorded baselines: velocity level, and for each path the recording whose timing it plays.
     recorded: Vec<RecordedBaseline>,
     /// `--profile`: the motion limits that scale 1 of the profile baseline stands for.
@@ -324,8 +326,11 @@ fn evaluate(
     rows.push(OutcomeSummary::of("policy", &outcomes));
     let mut episode_table = EpisodeTable::default();
     episode_table.add("policy", &env, &outcomes);
-    let (settled_packages, replaced_packages) =
-        (transport.settled_variants, env.replaced_variants());
+    let (settled_packages, replaced_packages, weak_grasps) = (
+        transport.settled_variants,
+        env.replaced_variants(),
+        env.weak_grasps(),
+    );
     first_episode.push(("policy".into(), traces.remove(0)));
     for &scale in scales {
         let mut env = baseline(transport.clone(), episodes).map_err(input_error)?;
@@ -436,6 +441,7 @@ fn evaluate(
         seed,
         settled_packages,
         replaced_packages,
+        weak_grasps,
         recorded: baselines,
         profile: (!args.profile.is_empty()).then(|| ProfileBaseline {
             base_limits,
@@ -455,7 +461,11 @@ fn evaluate(
          scripted xS = the recorded high-velocity path played S times as fast\n",
         report.run, episodes, seed
     );
-    text += &replaced_packages_line(report.settled_packages, report.replaced_packages);
+    text += &replaced_packages_line(
+        report.settled_packages,
+        report.replaced_packages,
+        report.weak_grasps,
+    );
     text.push('\n');
     if let Some(p) = &report.profile {
         let l = &p.base_limits;
@@ -712,10 +722,18 @@ fn render_beside_medium(
 
 /// The line `rlpkg train` and `rlpkg eval` print after a reset: how many of the settled randomised
 /// packages were replaced by the unrandomised one (draws the scene's solver cannot carry at its
-/// step).
-pub(crate) fn replaced_packages_line(settled: usize, replaced: usize) -> String {
-    format!(
+/// step, and grasps the cell's grasp check refuses).
+pub(crate) fn replaced_packages_line(
+    settled: usize,
+    replaced: usize,
+    weak_grasps: usize,
+) -> String {
+    let mut line = format!(
         "settled packages: {settled}, {replaced} of them replaced by the unrandomised package (not \
-         sealed or frozen at the scene's step)"
-    )
+         sealed or frozen at the scene's step"
+    );
+    if weak_grasps > 0 {
+        line += &format!(", or {weak_grasps} below the grasp check's vacuum");
+    }
+    line + ")"
 }
