@@ -230,7 +230,7 @@ fn settle(
             grasp_vacuum_ratio: loads
                 .iter()
                 .map(|l| {
-                    // Supply 1: the ratio. A NaN utilisation (a diverged package) reads as open.
+                    // Supply 1: the ratio. A NaN utilisation (a diverged package) counts as the ceiling.
                     let u = l.utilisation.min(UTILISATION_CEILING) as f64;
                     cup_vacuum_pa(1.0, l.attached, l.sealed_fraction as f64, u)
                 })
