@@ -17,7 +17,7 @@ use super::geometry::v3;
 use super::geometry::vec3_as_array;
 use super::reward::SUCCESS_COLUMN;
 use super::sensors::cup_vacuum_pa;
-use super::{sim_error, Transport, TransportPath, UTILISATION_CEILING};
+use super::{saturate_utilisation, sim_error, Transport, TransportPath};
 use crate::{env_rng, EnvError, StepBuffers, VecEnv};
 use rlpkg_vec_env::ResetCopies;
 
@@ -222,6 +222,7 @@ fn settle(
     let cups = model.num_cups();
     let mut loads = vec![CupLoad::default(); sim.num_envs() * cups];
     sim.read_cup_loads(&mut loads).map_err(sim_error)?;
+    saturate_utilisation(&mut loads);
     let settled = states
         .iter()
         .zip(loads.chunks(cups))
@@ -229,10 +230,14 @@ fn settle(
             sealed: !s.frozen && s.cups_attached == cups as u32,
             grasp_vacuum_ratio: loads
                 .iter()
+                // Supply 1: the ratio.
                 .map(|l| {
-                    // Supply 1: the ratio. A NaN utilisation (a diverged package) counts as the ceiling.
-                    let u = l.utilisation.min(UTILISATION_CEILING) as f64;
-                    cup_vacuum_pa(1.0, l.attached, l.sealed_fraction as f64, u)
+                    cup_vacuum_pa(
+                        1.0,
+                        l.attached,
+                        l.sealed_fraction as f64,
+                        l.utilisation as f64,
+                    )
                 })
                 .fold(f64::INFINITY, f64::min),
         })

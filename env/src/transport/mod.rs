@@ -337,7 +337,7 @@ impl Transport {
 }
 
 /// Caps every cup's utilisation at [`UTILISATION_CEILING`] (a non-finite one included).
-fn saturate_utilisation(loads: &mut [CupLoad]) {
+pub(super) fn saturate_utilisation(loads: &mut [CupLoad]) {
     for load in loads {
         // `f32::min` returns the ceiling for NaN too.
         load.utilisation = load.utilisation.min(UTILISATION_CEILING);
