@@ -460,6 +460,50 @@ upper = 2.0
     }
 
     #[test]
+    fn shipped_global_descent_chain_is_valid() {
+        // The real-film chain on global descent: stage 1 from block descent's fit, each later stage
+        // from the one before, the same parameters throughout with the membrane's shear stiffness
+        // bounded to 1e4-4e4 N/m after the first, and the last at the shipped scene's step.
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let load = |name: &str| {
+            CalibrateConfig::load(&configs.join(format!("calibrate/{name}.toml"))).unwrap()
+        };
+        let first = load("global-coarse-real-film");
+        assert_eq!(
+            Path::new(&first.sim.preset),
+            Path::new("configs/scenes/global-coarse-real-film.toml")
+        );
+        let mut previous =
+            Path::new("configs/scenes/calibrated-global-coarse-real-film.toml").to_path_buf();
+        let stages = ["stage2", "stage3", "stage4", "200hz"];
+        for stage in stages {
+            let c = load(&format!("global-coarse-real-film-{stage}"));
+            assert_eq!(Path::new(&c.sim.preset), previous, "{stage}");
+            assert_eq!(c.space().names(), first.space().names(), "{stage}");
+            let membrane = c.params.iter().find(|p| p.name == "k_tri_e").unwrap();
+            assert!(
+                membrane.lower >= 1.0e4 && membrane.upper <= 4.0e4,
+                "{stage}"
+            );
+            assert_eq!(c.sim.dt.is_some(), stage == "200hz", "{stage}");
+            previous = c.out_dir.join("calibrated.toml");
+        }
+        let last = load("global-coarse-real-film-200hz");
+        let shipped = rlpkg_sim::SceneConfig::load(
+            &configs.join("scenes/calibrated-global-coarse-real-film-200hz.toml"),
+        )
+        .unwrap();
+        assert_eq!(
+            shipped.integrator.substep_rate_hz,
+            1.0 / last.sim.dt.unwrap()
+        );
+        assert_eq!(
+            shipped.package.grid,
+            [6 + 5 * last.sim.between, 7 + 6 * last.sim.between]
+        );
+    }
+
+    #[test]
     fn errors_name_file_key_and_expectation() {
         let cases = [
             (
