@@ -5,7 +5,7 @@
 //! recording; at every recorded frame the simulated marker sites of the two are compared with each
 //! other and with the recording.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use rlpkg_mocap::dataset::{Dataset, Split};
@@ -22,6 +22,11 @@ fn rms(a: &[[f32; 3]], b: &[[f64; 3]]) -> f64 {
     (sum / a.len() as f64).sqrt()
 }
 
+/// The repository root.
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
 /// How two scenes that differ only in their solver replay the first 2 s of the first held-out
 /// recording.
 struct Agreement {
@@ -33,12 +38,32 @@ struct Agreement {
     object: [f64; 2],
 }
 
+impl Agreement {
+    /// The solvers' markers within `markers_m` RMS of each other, global descent as close to the
+    /// recorded markers as block descent (3 mm slack), and its disc within 30 mm RMS of the
+    /// recorded object (a disc that leaves the package, or a film that stretches, is off by
+    /// decimetres).
+    fn assert_within(&self, markers_m: f64) {
+        assert!(
+            self.between < markers_m,
+            "markers differ by {} m RMS",
+            self.between
+        );
+        assert!(
+            self.chamfer[1] < self.chamfer[0] + 3e-3,
+            "Chamfer {} m vs {} m",
+            self.chamfer[1],
+            self.chamfer[0]
+        );
+        assert!(self.object[1] < 0.03, "object {} m RMS", self.object[1]);
+    }
+}
+
 fn replay_both(descent: &SceneConfig, global: &SceneConfig) -> Agreement {
     assert_eq!(descent.integrator.solver, Solver::BlockDescent);
     assert_eq!(global.integrator.solver, Solver::GlobalDescent);
     assert_eq!(descent.params, global.params);
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let data = Dataset::open(&root.join("data/deformable-sim-real")).unwrap();
+    let data = Dataset::open(&root().join("data/deformable-sim-real")).unwrap();
     let id = &data.ids(Some(Split::Test))[0];
     let target = Target::new(
         &data.load(id).unwrap(),
@@ -100,29 +125,7 @@ fn replay_both(descent: &SceneConfig, global: &SceneConfig) -> Agreement {
 }
 
 fn scene(name: &str) -> SceneConfig {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    SceneConfig::load(&root.join("configs/scenes").join(name)).unwrap()
-}
-
-impl Agreement {
-    /// The solvers' markers within `markers_m` RMS of each other, global descent as close to the
-    /// recorded markers as block descent (3 mm slack), and its disc within 30 mm RMS of the
-    /// recorded object (a disc that leaves the package, or a film that stretches, is off by
-    /// decimetres).
-    fn assert_within(&self, markers_m: f64) {
-        assert!(
-            self.between < markers_m,
-            "markers differ by {} m RMS",
-            self.between
-        );
-        assert!(
-            self.chamfer[1] < self.chamfer[0] + 3e-3,
-            "Chamfer {} m vs {} m",
-            self.chamfer[1],
-            self.chamfer[0]
-        );
-        assert!(self.object[1] < 0.03, "object {} m RMS", self.object[1]);
-    }
+    SceneConfig::load(&root().join("configs/scenes").join(name)).unwrap()
 }
 
 #[test]
