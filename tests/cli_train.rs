@@ -259,27 +259,33 @@ fn set_overrides_are_stored_in_the_run_and_bad_ones_exit_with_code_2() {
 
 #[test]
 fn transport_trains_on_the_shipped_posterior_draws() {
-    // configs/train/transport-posterior.toml shrunk, reading its draws from data/posteriors: the
-    // loader checks them against the calibration their summary.json names (a path from the
-    // working directory, hence the link to the repository's configs).
+    // The shipped posterior configs shrunk, reading their draws from data/posteriors: the loader
+    // checks them against the calibration their summary.json names (a path from the working
+    // directory, hence the link to the repository's configs).
     let root = env!("CARGO_MANIFEST_DIR");
-    let text = common::tiny_training("transport-posterior.toml", 16, "2.0").replace(
-        "posterior = \"data/",
-        &format!("posterior = \"{root}/data/"),
-    );
-    assert!(text.contains(&format!("posterior = \"{root}/data/posteriors/")));
-    let dir = tempfile::tempdir().unwrap();
-    std::os::unix::fs::symlink(format!("{root}/configs"), dir.path().join("configs")).unwrap();
-    std::fs::write(dir.path().join("transport-posterior.toml"), text).unwrap();
-    let out = ok(&rlpkg(
-        &["train", "transport-posterior.toml", "--no-export"],
-        dir.path(),
-    ));
-    assert!(out.contains("settled packages: 1, "), "{out}");
-    let stored =
-        std::fs::read_to_string(dir.path().join("runs/transport-posterior/config.toml")).unwrap();
-    let key = format!("posterior = \"{root}/data/posteriors/coarse-soft-film\"");
-    assert!(stored.contains(&key), "{stored}");
+    for (name, posterior) in [
+        ("transport-posterior.toml", "coarse-soft-film"),
+        (
+            "transport-sensors-posterior.toml",
+            "global-coarse-real-film-200hz",
+        ),
+    ] {
+        let text = common::tiny_training(name, 16, "2.0").replace(
+            "posterior = \"data/",
+            &format!("posterior = \"{root}/data/"),
+        );
+        let key = format!("posterior = \"{root}/data/posteriors/{posterior}\"");
+        assert!(text.contains(&key), "{name}");
+        let dir = tempfile::tempdir().unwrap();
+        std::os::unix::fs::symlink(format!("{root}/configs"), dir.path().join("configs")).unwrap();
+        std::fs::write(dir.path().join(name), text).unwrap();
+        let out = ok(&rlpkg(&["train", name, "--no-export"], dir.path()));
+        assert!(out.contains("settled packages: 1, "), "{name}: {out}");
+        let run = name.trim_end_matches(".toml");
+        let stored =
+            std::fs::read_to_string(dir.path().join(format!("runs/{run}/config.toml"))).unwrap();
+        assert!(stored.contains(&key), "{name}: {stored}");
+    }
 }
 
 #[test]
