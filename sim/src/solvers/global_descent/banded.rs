@@ -55,39 +55,90 @@ impl<const W: usize> Banded<W> {
     }
 
     /// Factors the matrix in place, `A = L·Lᵀ` (row-by-row Cholesky-Crout).
+    #[inline(always)]
     pub(crate) fn factor(&mut self) {
-        let (n, b, w) = (self.n, self.b, self.b + 1);
-        let one = L::<W>::splat(1.0);
+        let (n, b) = (self.n, self.b);
         for i in 0..n {
+            // Row `i`'s entries four at a time (the last group holds the diagonal).
             let j0 = i.saturating_sub(b);
-            for j in j0..=i {
-                let k0 = j0.max(j.saturating_sub(b));
-                let row_i = &self.entries[self.at(i, k0)..self.at(i, j)];
-                let row_j = &self.entries[self.at(j, k0)..j * w + b];
-                let mut s = self.entries[self.at(i, j)];
-                for (&lik, &ljk) in row_i.iter().zip(row_j) {
-                    s -= lik * ljk;
-                }
-                let at = self.at(i, j);
-                self.entries[at] = if j < i {
-                    s * self.entries[self.at(j, j)]
-                } else {
-                    one / s.sqrt()
-                };
+            let mut j = j0;
+            while j + 4 <= i + 1 {
+                self.factor_entries::<4>(i, j0, j);
+                j += 4;
+            }
+            match i + 1 - j {
+                1 => self.factor_entries::<1>(i, j0, j),
+                2 => self.factor_entries::<2>(i, j0, j),
+                3 => self.factor_entries::<3>(i, j0, j),
+                _ => {}
             }
         }
     }
 
+    /// Entries `(i, j .. j + G)` of the factor, `j0` the first column of row `i`: each is
+    /// `(A_ij − Σ_k L_ik·L_jk)` summed in column order from `j0` (times `1 / L_jj`, or its
+    /// inverse square root on the diagonal). The `G` sums run side by side, so the additions of
+    /// one entry do not wait on each other's latency; each entry's operations stay as they are.
+    #[inline(always)]
+    fn factor_entries<const G: usize>(&mut self, i: usize, j0: usize, j: usize) {
+        let b = self.b;
+        let at = |r: usize, c: usize| r * (b + 1) + b + c - r;
+        let e = &mut self.entries;
+        let len = j - j0;
+        let mut s: [L<W>; G] = std::array::from_fn(|g| e[at(i, j + g)]);
+        let row_i = &e[at(i, j0)..at(i, j0) + len];
+        let rows: [&[L<W>]; G] = std::array::from_fn(|g| &e[at(j + g, j0)..at(j + g, j0) + len]);
+        for k in 0..len {
+            let lik = row_i[k];
+            for (sg, row) in s.iter_mut().zip(&rows) {
+                *sg -= lik * row[k];
+            }
+        }
+        // The columns of this group: entry `j + g` needs the `g` before it.
+        for (g, mut sg) in s.into_iter().enumerate() {
+            for k in j..j + g {
+                sg -= e[at(i, k)] * e[at(j + g, k)];
+            }
+            e[at(i, j + g)] = if j + g < i {
+                sg * e[at(j + g, j + g)]
+            } else {
+                L::splat(1.0) / sg.sqrt()
+            };
+        }
+    }
+
     /// Solves `A·x = rhs` in place with the factor (three right-hand sides, the components).
+    #[inline(always)]
     pub(crate) fn solve(&self, rhs: &mut [V3<L<W>>]) {
         let (n, b) = (self.n, self.b);
-        for i in 0..n {
-            let j0 = i.saturating_sub(b);
-            let mut s = rhs[i];
-            for (k, &lik) in (j0..i).zip(&self.entries[self.at(i, j0)..self.at(i, i)]) {
-                s -= rhs[k] * lik;
+        // Forward, two rows side by side (their sums share all columns but row `i`'s first and
+        // row `i + 1`'s last; each sum in column order).
+        let mut i = 0;
+        while i + 1 < n {
+            let (j0, j1) = (i.saturating_sub(b), (i + 1).saturating_sub(b));
+            let (row0, row1) = (self.row(i), self.row(i + 1));
+            let (mut s0, mut s1) = (rhs[i], rhs[i + 1]);
+            for k in j0..j1 {
+                s0 -= rhs[k] * row0[b + k - i];
             }
-            rhs[i] = s * self.entries[self.at(i, i)];
+            for k in j1..i {
+                let r = rhs[k];
+                s0 -= r * row0[b + k - i];
+                s1 -= r * row1[b + k - i - 1];
+            }
+            rhs[i] = s0 * row0[b];
+            s1 -= rhs[i] * row1[b - 1];
+            rhs[i + 1] = s1 * row1[b];
+            i += 2;
+        }
+        if i < n {
+            let j0 = i.saturating_sub(b);
+            let row = self.row(i);
+            let mut s = rhs[i];
+            for k in j0..i {
+                s -= rhs[k] * row[b + k - i];
+            }
+            rhs[i] = s * row[b];
         }
         for i in (0..n).rev() {
             let mut s = rhs[i];
@@ -96,6 +147,13 @@ impl<const W: usize> Banded<W> {
             }
             rhs[i] = s * self.entries[self.at(i, i)];
         }
+    }
+
+    /// Row `i` of the lower band (see [`Banded::row_mut`]).
+    #[inline(always)]
+    fn row(&self, i: usize) -> &[L<W>] {
+        let w = self.b + 1;
+        &self.entries[i * w..(i + 1) * w]
     }
 }
 

@@ -88,6 +88,8 @@ struct GlobalSystem<const W: usize> {
     residual: Vec<V3<L<W>>>,
     /// The residual in band order.
     rhs: Vec<V3<L<W>>>,
+    /// The diagonal terms of `P` besides the membrane's, per package particle.
+    diagonal: Vec<L<W>>,
 }
 
 impl<const W: usize> GlobalSystem<W> {
@@ -145,6 +147,7 @@ impl<const W: usize> GlobalSystem<W> {
             system: Banded::new(n, band),
             residual: vec![V3::zero(); n],
             rhs: vec![V3::zero(); n],
+            diagonal: Vec::with_capacity(n),
         }
     }
 
@@ -153,6 +156,7 @@ impl<const W: usize> GlobalSystem<W> {
         self.system.bytes()
             + (self.residual.capacity() + self.rhs.capacity()) * v3
             + self.laplacian.capacity() * 4
+            + self.diagonal.capacity() * std::mem::size_of::<L<W>>()
             + self.row_of.capacity() * 4
     }
 }
@@ -161,6 +165,7 @@ impl<const W: usize> GlobalStep<W> for GlobalSystem<W> {
     /// Assembles and factors `P` for the substep: inertia and membrane, the sealed attachment
     /// springs, and the contact stiffness of the particles that may touch the disc or the ground
     /// (within two particle radii at the inertial prediction, per lane).
+    #[inline(always)]
     fn prepare(&mut self, step: &Substep<'_, W>, state: &State<W>) {
         let (model, k, p) = (step.model, step.k, &step.setup.params);
         let n = model.num_package;
@@ -168,7 +173,9 @@ impl<const W: usize> GlobalStep<W> for GlobalSystem<W> {
         let inv_h = L::<W>::splat(1.0 / k.dt);
         let inertial = (L::splat(1.0) / p.inv_mass_package) * inv_h * inv_h;
         let membrane = p.tri[0] + p.tri[1] + p.tri[2] * inv_h;
-        let mut diagonal = vec![inertial; n];
+        let diagonal = &mut self.diagonal;
+        diagonal.clear();
+        diagonal.resize(n, inertial);
         let spring = p.spring[0] + p.spring[1] * inv_h;
         for s in &state.springs {
             for l in 0..W {
@@ -211,6 +218,7 @@ impl<const W: usize> GlobalStep<W> for GlobalSystem<W> {
         Some(&mut self.residual)
     }
 
+    #[inline(always)]
     fn solve(&mut self) {
         for (r, &row) in self.residual.iter().zip(&self.row_of) {
             self.rhs[row as usize] = *r;
