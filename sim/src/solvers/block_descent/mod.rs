@@ -25,7 +25,7 @@ mod vertex;
 use crate::forces::{self, ContactMaterial};
 use crate::math::{get3, set3, Lanes, Quat, Real, Sym3, V3};
 use crate::model::Model;
-use crate::state::{LaneParams, LaneSpring, State};
+use crate::state::{LaneParams, State};
 
 use super::{Integrator, Substep};
 use disc::{rotation_between, turned, world_inertia_times, Disc6};
@@ -45,10 +45,12 @@ pub(crate) struct BlockDescent<const W: usize> {
     /// The step velocity `(x − x_start) / h` of each package vertex's current iterate, kept with
     /// `x` (every element around a vertex reads it).
     x_rate: Vec<V3<L<W>>>,
-    /// Attachment springs per package vertex (rows of `[spring; W]`, one spring index per lane or
-    /// `u32::MAX`), and the particles near the disc this substep.
+    /// Attachment springs per package vertex (`spring_slot_starts[i]..spring_slot_starts[i + 1]`
+    /// of `spring_slots`), the counts per vertex and lane that index them, and the particles near
+    /// the disc this substep.
     spring_slot_starts: Vec<u32>,
-    spring_slots: Vec<[u32; W]>,
+    spring_slots: Vec<SpringSlot<W>>,
+    spring_counts: Vec<[u32; W]>,
     disc_candidates: Vec<u32>,
     /// Whether each package particle is among `disc_candidates`.
     near_disc: Vec<bool>,
@@ -61,11 +63,38 @@ pub(crate) struct BlockDescent<const W: usize> {
     bend_stiffness: Vec<Sym3<L<W>>>,
 }
 
+/// One attachment spring slot of a package vertex, per lane: the cup particle it pulls towards
+/// (position, velocity), its rest length and whether it is sealed (1) or not (0); lanes without
+/// a spring in this slot pull with nothing.
+#[derive(Clone, Copy)]
+struct SpringSlot<const W: usize> {
+    anchor: V3<L<W>>,
+    anchor_v: V3<L<W>>,
+    rest: L<W>,
+    on: L<W>,
+}
+
+impl<const W: usize> SpringSlot<W> {
+    /// A slot without springs.
+    fn none() -> Self {
+        SpringSlot {
+            anchor: V3::zero(),
+            anchor_v: V3::zero(),
+            rest: L::splat(1.0),
+            on: L::splat(0.0),
+        }
+    }
+}
+
 impl<const W: usize> BlockDescent<W> {
     /// Rebuilds, for each package vertex, the attachment springs pulling on it in each lane (a
-    /// lane's cup particles attach to vertices of its own choosing).
-    fn index_springs(&mut self, springs: &[LaneSpring<W>], num_package: usize) {
-        let mut counts = vec![[0u32; W]; num_package];
+    /// lane's cup particles attach to vertices of its own choosing), with what they read of the
+    /// cups (which stay put during the substep's sweeps).
+    fn index_springs(&mut self, state: &State<W>, num_package: usize, cup_start: usize) {
+        let springs = &state.springs;
+        let counts = &mut self.spring_counts;
+        counts.clear();
+        counts.resize(num_package, [0u32; W]);
         for spring in springs {
             for l in 0..W {
                 counts[spring.target[l] as usize][l] += 1;
@@ -73,21 +102,27 @@ impl<const W: usize> BlockDescent<W> {
         }
         self.spring_slot_starts.clear();
         self.spring_slot_starts.push(0);
-        for c in &counts {
+        for c in counts.iter() {
             let most = c.iter().copied().max().unwrap_or(0);
             let last = *self.spring_slot_starts.last().unwrap_or(&0);
             self.spring_slot_starts.push(last + most);
         }
         let total = *self.spring_slot_starts.last().unwrap_or(&0) as usize;
         self.spring_slots.clear();
-        self.spring_slots.resize(total, [u32::MAX; W]);
-        let mut filled = vec![[0u32; W]; num_package];
+        self.spring_slots.resize(total, SpringSlot::none());
+        // Now the slots filled so far per vertex and lane.
+        counts.fill([0u32; W]);
         for (s, spring) in springs.iter().enumerate() {
+            let c = cup_start + s;
             for l in 0..W {
                 let j = spring.target[l] as usize;
-                let slot = self.spring_slot_starts[j] + filled[j][l];
-                self.spring_slots[slot as usize][l] = s as u32;
-                filled[j][l] += 1;
+                let slot =
+                    &mut self.spring_slots[(self.spring_slot_starts[j] + counts[j][l]) as usize];
+                set3(&mut slot.anchor, l, get3(&state.x[c], l));
+                set3(&mut slot.anchor_v, l, get3(&state.v[c], l));
+                slot.rest.0[l] = spring.rest.0[l];
+                slot.on.0[l] = spring.sealed.0[l];
+                counts[j][l] += 1;
             }
         }
     }
@@ -213,7 +248,6 @@ impl<const W: usize> BlockDescent<W> {
         let half = L::<W>::splat(0.5);
         let up = V3::new(zero, L::splat(1.0), zero);
         let radius = model.particle_radius;
-        let cup_start = model.cup_start();
         let xi = state.x[i];
         let vi = self.x_rate[i];
         // Bending, evaluated at the start of the sweep (it is soft: lagging it costs
@@ -222,22 +256,12 @@ impl<const W: usize> BlockDescent<W> {
         stiff.add_assign(self.bend_stiffness[i]);
         let slots = self.spring_slot_starts[i] as usize..self.spring_slot_starts[i + 1] as usize;
         for slot in &self.spring_slots[slots] {
-            let mut anchor = V3::<L<W>>::zero();
-            let mut anchor_v = V3::<L<W>>::zero();
-            let mut rest = L::<W>::splat(1.0);
-            let mut on = zero;
-            for l in 0..W {
-                let s = slot[l];
-                if s == u32::MAX {
-                    continue;
-                }
-                let spring = &state.springs[s as usize];
-                let c = cup_start + s as usize;
-                set3(&mut anchor, l, get3(&state.x[c], l));
-                set3(&mut anchor_v, l, get3(&state.v[c], l));
-                rest.0[l] = spring.rest.0[l];
-                on.0[l] = spring.sealed.0[l];
-            }
+            let SpringSlot {
+                anchor,
+                anchor_v,
+                rest,
+                on,
+            } = *slot;
             // Lanes without this slot, and lip elements that let go, pull with nothing.
             let (ke, kd) = (p.spring[0] * on, p.spring[1] * on);
             let (f, kk) = spring_vertex(xi, anchor, vi, anchor_v, rest, ke, kd, inv_h);
@@ -285,6 +309,7 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
             x_rate: vec![zero3; n],
             spring_slot_starts: Vec::new(),
             spring_slots: Vec::new(),
+            spring_counts: Vec::new(),
             disc_candidates: Vec::new(),
             near_disc: Vec::new(),
             x_before: vec![zero3; chebyshev],
@@ -409,7 +434,7 @@ impl<const W: usize> BlockDescent<W> {
             state.contact_point[i] = local - n_local * d;
             state.contact_normal[i] = disc_start.q.rotate(n_local);
         }
-        self.index_springs(&state.springs, num_package);
+        self.index_springs(state, num_package, cup_start);
         global.prepare(step, state);
 
         let rad = L::<W>::splat(radius);
