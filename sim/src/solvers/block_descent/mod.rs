@@ -333,6 +333,8 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
         .map(|a| a.capacity() * per_particle)
         .sum::<usize>()
             + self.bend_stiffness.capacity() * std::mem::size_of::<Sym3<L<W>>>()
+            + self.spring_slots.capacity() * std::mem::size_of::<SpringSlot<W>>()
+            + self.spring_counts.capacity() * std::mem::size_of::<[u32; W]>()
     }
 
     /// One substep (see the module documentation).
