@@ -1025,6 +1025,7 @@ mod tests {
             "transport-sensors.toml",
             "transport-posterior.toml",
             "transport-sensors-posterior.toml",
+            "transport-sensors-posterior-soft-film.toml",
         ] {
             let path = format!("{root}/configs/train/{name}");
             // A posterior names its calibration config relative to the repository root, which is
