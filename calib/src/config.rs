@@ -504,6 +504,24 @@ upper = 2.0
     }
 
     #[test]
+    fn shipped_larger_step_configs_search_the_posteriors_box() {
+        // The fits at 120 and 100 substeps/s that bound the real film's step: each starts from the
+        // shipped 200 Hz scene and searches the box of its posterior's prior, at its own step.
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let load = |name: &str| {
+            CalibrateConfig::load(&configs.join(format!("calibrate/{name}.toml"))).unwrap()
+        };
+        let prior = load("global-coarse-real-film-200hz-local");
+        for rate_hz in [120.0, 100.0] {
+            let c = load(&format!("global-coarse-real-film-{rate_hz}hz"));
+            assert_eq!(c.sim.preset, prior.sim.preset, "{rate_hz}");
+            assert_eq!(1.0 / c.sim.dt.unwrap(), rate_hz);
+            assert_eq!(c.params, prior.params, "{rate_hz}");
+            assert_eq!(c.sim.between, prior.sim.between, "{rate_hz}");
+        }
+    }
+
+    #[test]
     fn errors_name_file_key_and_expectation() {
         let cases = [
             (

@@ -611,7 +611,7 @@ impl SceneConfig {
             f,
             "integrator.substep_rate_hz",
             i.substep_rate_hz,
-            100.0,
+            20.0,
             1e8,
         )?;
         check(
