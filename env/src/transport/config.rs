@@ -75,7 +75,7 @@ pub struct TransportConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ProfileRateAction {
-    /// The plan's limits as a multiple of the tool's (`[transport.limits]`), in (0, 1.5]. Above 1
+    /// The plan's limits as a multiple of the tool's (`[transport.limits]`), in (0, 3]. Above 1
     /// the plan asks for more than the tool gives and the path speed's clamps shape it, as they
     /// shape the profile baseline's rows above x1.
     pub limits_scale: f64,
@@ -652,7 +652,7 @@ impl TransportConfig {
                 message: e.to_string(),
             })?;
         if let Some(p) = &self.profile_rate {
-            check(s, "profile_rate.limits_scale", p.limits_scale, 1e-3, 1.5)?;
+            check(s, "profile_rate.limits_scale", p.limits_scale, 1e-3, 3.0)?;
             check(s, "profile_rate.max_rate", p.max_rate, 1.0, 4.0)?;
             check(
                 s,
@@ -945,7 +945,7 @@ mod tests {
         for (from, to, key) in [
             (
                 "limits_scale = 1.0",
-                "limits_scale = 1.6",
+                "limits_scale = 3.5",
                 "profile_rate.limits_scale",
             ),
             ("max_rate = 2.0", "max_rate = 0.5", "profile_rate.max_rate"),
