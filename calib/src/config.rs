@@ -459,16 +459,19 @@ upper = 2.0
         }
     }
 
+    /// A calibration config shipped in `configs/calibrate/`, by its file stem.
+    fn shipped(name: &str) -> CalibrateConfig {
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        CalibrateConfig::load(&configs.join(format!("calibrate/{name}.toml"))).unwrap()
+    }
+
     #[test]
     fn shipped_global_descent_chain_is_valid() {
         // The real-film chain on global descent: stage 1 from block descent's fit, each later stage
         // from the one before, the same parameters throughout with the membrane's shear stiffness
         // bounded to 1e4-4e4 N/m after the first, and the last at the shipped scene's step.
         let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
-        let load = |name: &str| {
-            CalibrateConfig::load(&configs.join(format!("calibrate/{name}.toml"))).unwrap()
-        };
-        let first = load("global-coarse-real-film");
+        let first = shipped("global-coarse-real-film");
         assert_eq!(
             Path::new(&first.sim.preset),
             Path::new("configs/scenes/global-coarse-real-film.toml")
@@ -477,7 +480,7 @@ upper = 2.0
             Path::new("configs/scenes/calibrated-global-coarse-real-film.toml").to_path_buf();
         let stages = ["stage2", "stage3", "stage4", "200hz"];
         for stage in stages {
-            let c = load(&format!("global-coarse-real-film-{stage}"));
+            let c = shipped(&format!("global-coarse-real-film-{stage}"));
             assert_eq!(Path::new(&c.sim.preset), previous, "{stage}");
             assert_eq!(c.space().names(), first.space().names(), "{stage}");
             let membrane = c.params.iter().find(|p| p.name == "k_tri_e").unwrap();
@@ -488,17 +491,14 @@ upper = 2.0
             assert_eq!(c.sim.dt.is_some(), stage == "200hz", "{stage}");
             previous = c.out_dir.join("calibrated.toml");
         }
-        let last = load("global-coarse-real-film-200hz");
-        let shipped = rlpkg_sim::SceneConfig::load(
+        let last = shipped("global-coarse-real-film-200hz");
+        let scene = rlpkg_sim::SceneConfig::load(
             &configs.join("scenes/calibrated-global-coarse-real-film-200hz.toml"),
         )
         .unwrap();
+        assert_eq!(scene.integrator.substep_rate_hz, 1.0 / last.sim.dt.unwrap());
         assert_eq!(
-            shipped.integrator.substep_rate_hz,
-            1.0 / last.sim.dt.unwrap()
-        );
-        assert_eq!(
-            shipped.package.grid,
+            scene.package.grid,
             [6 + 5 * last.sim.between, 7 + 6 * last.sim.between]
         );
     }
@@ -507,13 +507,9 @@ upper = 2.0
     fn shipped_larger_step_configs_search_the_posteriors_box() {
         // The fits at 120 and 100 substeps/s that bound the real film's step: each starts from the
         // shipped 200 Hz scene and searches the box of its posterior's prior, at its own step.
-        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
-        let load = |name: &str| {
-            CalibrateConfig::load(&configs.join(format!("calibrate/{name}.toml"))).unwrap()
-        };
-        let prior = load("global-coarse-real-film-200hz-local");
+        let prior = shipped("global-coarse-real-film-200hz-local");
         for rate_hz in [120.0, 100.0] {
-            let c = load(&format!("global-coarse-real-film-{rate_hz}hz"));
+            let c = shipped(&format!("global-coarse-real-film-{rate_hz}hz"));
             assert_eq!(c.sim.preset, prior.sim.preset, "{rate_hz}");
             assert_eq!(1.0 / c.sim.dt.unwrap(), rate_hz);
             assert_eq!(c.params, prior.params, "{rate_hz}");
