@@ -298,3 +298,140 @@ fn evaluates_parameters_on_a_split() {
     }
     assert!(eval_out.join("summary.json").exists());
 }
+
+/// A config that samples the posterior of `k_tri_e` with a small population.
+fn posterior_config(dir: &Path, data: &Path, preset: &Path) -> PathBuf {
+    let path = dir.join("posterior.toml");
+    std::fs::write(
+        &path,
+        format!(
+            r#"
+data = "{}"
+out_dir = "{}"
+
+[sim]
+preset = "{}"
+between = 0
+max_seconds = 0.05
+
+[smc]
+particles = 8
+moves = 1
+seed = 4
+
+[loss]
+object = 1.0
+package = 1.0
+kind = "labelled"
+
+[[param]]
+name = "k_tri_e"
+lower = 1.0e4
+upper = 1.0e6
+log = true
+"#,
+            data.display(),
+            dir.join("posterior").display(),
+            preset.display()
+        ),
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn samples_a_posterior_on_the_simulator_and_resumes_it_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "train");
+    let preset = quick_preset(dir.path());
+    let cfg = posterior_config(dir.path(), &data, &preset);
+    let out = rlpkg(&["calibrate", cfg.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(
+        stdout.contains("candidates simulated") && stdout.contains("eigen-directions"),
+        "{stdout}"
+    );
+    // HHHHH's markers are tracked through the 30 frames and tied to the simulated sites.
+    assert!(
+        stdout.contains("HHHHH: 26 markers tracked from the first frame")
+            && stdout.contains("tied to a site"),
+        "{stdout}"
+    );
+    let out_dir = dir.path().join("posterior");
+    for file in [
+        "objective.toml",
+        "evaluations.csv",
+        "stages.csv",
+        "samples.csv",
+        "posterior.toml",
+        "best.toml",
+        "fisher.toml",
+        "calibrated.toml",
+        "corner.png",
+    ] {
+        assert!(out_dir.join(file).is_file(), "{file} missing");
+    }
+    let samples = std::fs::read_to_string(out_dir.join("samples.csv")).unwrap();
+    assert_eq!(samples.lines().count(), 1 + 8, "{samples}");
+    for line in samples.lines().skip(1) {
+        let value: f64 = line.parse().unwrap();
+        assert!((1.0e4..=1.0e6).contains(&value), "{line}");
+    }
+    let log = std::fs::read_to_string(out_dir.join("evaluations.csv")).unwrap();
+    assert!(
+        log.starts_with("batch,candidate,k_tri_e,objective,loss,"),
+        "{log}"
+    );
+    let posterior = std::fs::read_to_string(out_dir.join("posterior.toml")).unwrap();
+
+    // Cut the log after its first two batches, as an interrupted run leaves it: the rerun serves
+    // them again and ends where the whole run ended.
+    let kept: Vec<&str> = log
+        .lines()
+        .filter(|l| {
+            !l.starts_with("batch") && l.split(',').next().unwrap().parse::<usize>().unwrap() < 2
+        })
+        .collect();
+    std::fs::write(
+        out_dir.join("evaluations.csv"),
+        format!("{}\n{}\n", log.lines().next().unwrap(), kept.join("\n")),
+    )
+    .unwrap();
+    let again = rlpkg(&["calibrate", cfg.to_str().unwrap()]);
+    assert!(again.status.success(), "{}", text(&again.stderr));
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("evaluations.csv")).unwrap(),
+        log
+    );
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("samples.csv")).unwrap(),
+        samples
+    );
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("posterior.toml")).unwrap(),
+        posterior
+    );
+
+    // Another seed is another objective record: refused without --fresh.
+    let other = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("seed = 4", "seed = 5");
+    std::fs::write(&cfg, other).unwrap();
+    let refused = rlpkg(&["calibrate", cfg.to_str().unwrap()]);
+    assert_eq!(refused.status.code(), Some(2), "{}", text(&refused.stderr));
+    assert!(
+        text(&refused.stderr).contains("--fresh"),
+        "{}",
+        text(&refused.stderr)
+    );
+    let iterations = rlpkg(&[
+        "calibrate",
+        cfg.to_str().unwrap(),
+        "--fresh",
+        "--iterations",
+        "3",
+    ]);
+    assert_eq!(iterations.status.code(), Some(2));
+    assert!(text(&iterations.stderr).contains("smc.particles"));
+}

@@ -8,9 +8,11 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::bo::{Acquisition, BoSettings};
+use crate::smc::SmcSettings;
 use crate::space::{ParamSpace, ParamSpec};
 use rlpkg_mocap::{Dataset, Split};
 use rlpkg_replay::loss::LossWeights;
+use rlpkg_replay::LikelihoodSettings;
 use rlpkg_sim::SceneConfig;
 
 /// Simulator parameter names that can be calibrated (defined beside the replay set-up).
@@ -106,8 +108,15 @@ pub struct CalibrateConfig {
     pub out_dir: PathBuf,
     /// Simulator settings.
     pub sim: SimSettings,
-    /// Optimiser settings.
-    pub optimiser: OptimiserSettings,
+    /// Bayesian optimisation settings (the paper's method); exactly one of `[optimiser]` and `[smc]`.
+    #[serde(default)]
+    pub optimiser: Option<OptimiserSettings>,
+    /// Sequential Monte Carlo on the simulator ([`crate::smc`]): the posterior instead of a point.
+    #[serde(default)]
+    pub smc: Option<SmcSettings>,
+    /// The likelihood the sampler uses ([`rlpkg_replay::likelihood`]).
+    #[serde(default)]
+    pub likelihood: LikelihoodSettings,
     /// Loss weights (object 1.0, package 0.2 by default, as the study).
     #[serde(default)]
     pub loss: LossWeights,
@@ -164,7 +173,35 @@ impl CalibrateConfig {
                 return Err(range("sim.max_seconds", s.to_string(), "a duration > 0 s"));
             }
         }
-        let o = &self.optimiser;
+        let o =
+            match (&self.optimiser, &self.smc) {
+                (Some(o), None) => o,
+                (None, Some(smc)) => {
+                    crate::smc::check_settings(self.params.len().max(1), smc)
+                        .map_err(|e| range("smc", e.to_string(), "settings in range"))?;
+                    let d = self.likelihood.decorrelation_s;
+                    if !(0.0..=60.0).contains(&d) {
+                        return Err(range(
+                            "likelihood.decorrelation_s",
+                            d.to_string(),
+                            "a time in [0, 60] s",
+                        ));
+                    }
+                    return self.validate_common(file);
+                }
+                (Some(_), Some(_)) => {
+                    return Err(range(
+                        "optimiser",
+                        "[optimiser] and [smc]".into(),
+                        "one method: [optimiser] (Bayesian optimisation) or [smc] (posterior)",
+                    ))
+                }
+                (None, None) => return Err(range(
+                    "optimiser",
+                    "(none)".into(),
+                    "an [optimiser] table (Bayesian optimisation) or an [smc] table (posterior)",
+                )),
+            };
         if !(1..=100_000).contains(&o.iterations) {
             return Err(range(
                 "optimiser.iterations",
@@ -203,6 +240,17 @@ impl CalibrateConfig {
             }
             _ => {}
         }
+        self.validate_common(file)
+    }
+
+    /// Checks of the keys both methods share.
+    fn validate_common(&self, file: &Path) -> Result<(), ConfigError> {
+        let range = |key: &str, value: String, expected: &str| ConfigError::Range {
+            file: file.to_path_buf(),
+            key: key.into(),
+            value,
+            expected: expected.into(),
+        };
         for (key, w) in [
             ("loss.object", self.loss.object),
             ("loss.package", self.loss.package),
@@ -289,13 +337,29 @@ impl CalibrateConfig {
         Ok(ids)
     }
 
+    /// The `[optimiser]` table of a Bayesian-optimisation config (validated: present unless the
+    /// config has `[smc]`, which callers check first).
+    pub fn optimiser(&self) -> &OptimiserSettings {
+        self.optimiser
+            .as_ref()
+            .expect("a config without [smc] has [optimiser] (validated when loaded)")
+    }
+
+    /// The `[optimiser]` table, to override from the command line.
+    pub fn optimiser_mut(&mut self) -> &mut OptimiserSettings {
+        self.optimiser
+            .as_mut()
+            .expect("a config without [smc] has [optimiser] (validated when loaded)")
+    }
+
     /// The optimiser settings for [`crate::bo::BayesOpt`].
     pub fn bo_settings(&self) -> BoSettings {
+        let o = self.optimiser();
         BoSettings {
-            initial_points: self.optimiser.initial_points,
-            batch_size: self.optimiser.batch_size,
-            acquisition: self.optimiser.acquisition,
-            seed: self.optimiser.seed,
+            initial_points: o.initial_points,
+            batch_size: o.batch_size,
+            acquisition: o.acquisition,
+            seed: o.seed,
             ..BoSettings::default()
         }
     }
@@ -350,7 +414,7 @@ upper = 2.0
         assert_eq!(c.space().names(), vec!["k_tri_e", "mu_con"]);
         assert!(c.params[0].log && !c.params[1].log);
         assert_eq!(
-            c.optimiser.acquisition,
+            c.optimiser().acquisition,
             Acquisition::ConfidenceBound { kappa: 2.5 }
         );
         assert_eq!(c.loss.package, 0.5);
@@ -515,6 +579,36 @@ upper = 2.0
             assert_eq!(c.params, prior.params, "{rate_hz}");
             assert_eq!(c.sim.between, prior.sim.between, "{rate_hz}");
         }
+    }
+
+    #[test]
+    fn an_smc_config_samples_instead_of_optimising_and_names_one_method() {
+        let optimiser = GOOD.find("[optimiser]").unwrap();
+        let end = GOOD.find("[loss]").unwrap();
+        let smc =
+            "[smc]\nparticles = 64\nmoves = 3\nseed = 2\n\n[likelihood]\ndecorrelation_s = 0.2\n\n";
+        let text = format!("{}{smc}{}", &GOOD[..optimiser], &GOOD[end..]);
+        let c = parse(&text).unwrap();
+        let settings = c.smc.unwrap();
+        assert_eq!(
+            (settings.particles, settings.moves, settings.seed),
+            (64, 3, 2)
+        );
+        assert_eq!(settings.ess_fraction, 0.5);
+        assert_eq!(c.likelihood.decorrelation_s, 0.2);
+        assert!(c.optimiser.is_none());
+        let both = format!("{}{smc}{}", &GOOD[..end], &GOOD[end..]);
+        assert!(parse(&both).unwrap_err().to_string().contains("one method"));
+        let neither = format!("{}{}", &GOOD[..optimiser], &GOOD[end..]);
+        assert!(parse(&neither).unwrap_err().to_string().contains("[smc]"));
+        let few = text.replace("particles = 64", "particles = 3");
+        assert!(parse(&few)
+            .unwrap_err()
+            .to_string()
+            .contains("particles = 3"));
+        let long = text.replace("decorrelation_s = 0.2", "decorrelation_s = 100.0");
+        let message = parse(&long).unwrap_err().to_string();
+        assert!(message.contains("likelihood.decorrelation_s"), "{message}");
     }
 
     #[test]

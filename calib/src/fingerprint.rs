@@ -34,6 +34,12 @@ pub struct ObjectiveRecord<'a> {
     pub loss: LossWeights,
     /// Calibrated parameters with their bounds.
     pub param: &'a [ParamSpec],
+    /// The sampler of a posterior calibration (absent for Bayesian optimisation).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub smc: Option<crate::smc::SmcSettings>,
+    /// The likelihood of a posterior calibration (absent for Bayesian optimisation).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub likelihood: Option<rlpkg_replay::LikelihoodSettings>,
     /// The scene the candidates are simulated in (preset, overrides, base parameter values).
     pub scene: &'a SceneConfig,
 }

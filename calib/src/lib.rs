@@ -5,9 +5,12 @@
 //! * [`bo`] — batched Bayesian optimisation (EI / confidence bound, Kriging believer), ask/tell;
 //! * [`evallog`] — the resumable CSV log of evaluations;
 //! * [`driver`] — the calibration loop (ask, evaluate, log, tell) and its output files;
+//! * [`fisher`] — identifiability at a fit: the Fisher information's eigen-directions;
 //! * [`fingerprint`] — the objective a calibration folder fits, checked when it is resumed;
 //! * [`posterior`] — an approximate posterior from a calibration's evaluations (BOLFI);
 //! * [`recovery`] — parameter recovery: calibrating synthetic recordings of known parameters back;
+//! * [`sampled_posterior`] — a calibration that returns the posterior (SMC on the simulator);
+//! * [`smc`] — adaptive tempered sequential Monte Carlo: a posterior evaluated by the simulator;
 //! * [`mcmc`] — the affine-invariant ensemble sampler the posterior draws with;
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
 //! * [`config`] — `configs/calibrate/study.toml`;
@@ -20,11 +23,14 @@ pub mod config;
 pub mod driver;
 pub mod evallog;
 pub mod fingerprint;
+pub mod fisher;
 pub mod gp;
 pub mod mcmc;
 pub mod objective;
 pub mod posterior;
 pub mod recovery;
+pub mod sampled_posterior;
+pub mod smc;
 pub mod space;
 
 /// The loss and the evaluation helpers live with the replay set-up; re-exported under their old

@@ -6,7 +6,7 @@
 use std::sync::Arc;
 
 use rlpkg_mocap::Trajectory;
-use rlpkg_replay::loss::LossWeights;
+use rlpkg_replay::loss::{LossKind, LossWeights};
 use rlpkg_replay::{get_param, mean_loss, rollout, set_param, Candidate, ReplayError, Target};
 use rlpkg_sim::{Model, SceneConfig};
 
@@ -52,19 +52,25 @@ impl SimObjective {
         Self::from_targets(scene, names, targets, weights)
     }
 
-    /// Builds the model of `scene` for already prepared targets.
+    /// Builds the model of `scene` for already prepared targets. With the labelled loss, the
+    /// targets' first-frame tracks are tied to the sites the scene's own parameters simulate at
+    /// that frame ([`Target::tie_sites`]), unless their sites are known already.
     pub fn from_targets(
         scene: &SceneConfig,
         names: Vec<String>,
-        targets: Vec<Target>,
+        mut targets: Vec<Target>,
         weights: LossWeights,
     ) -> Result<Self, ReplayError> {
         let base = Candidate::of_scene(scene);
         for name in &names {
             get_param(&base, name)?;
         }
+        let model = Arc::new(Model::new(scene)?);
+        if weights.kind == LossKind::Labelled {
+            tie_sites(&model, &mut targets, base)?;
+        }
         Ok(Self {
-            model: Arc::new(Model::new(scene)?),
+            model,
             base,
             names,
             targets,
@@ -113,11 +119,65 @@ impl SimObjective {
     }
 }
 
+/// Ties the untied targets' tracks to the sites `base` simulates at each track's first frame
+/// ([`Target::tie_sites`]): one rollout of `base` on those targets.
+fn tie_sites(
+    model: &Arc<Model>,
+    targets: &mut [Target],
+    base: Candidate,
+) -> Result<(), ReplayError> {
+    struct Sites(Vec<Vec<Vec<[f64; 3]>>>);
+    impl Observer for Sites {
+        fn frame(&mut self, o: &FrameObservation) {
+            self.0[o.target].push(o.simulated_points.to_vec());
+        }
+    }
+    let untied: Vec<usize> = (0..targets.len())
+        .filter(|&t| targets[t].labelled_share() == 0.0)
+        .collect();
+    if untied.is_empty() {
+        return Ok(());
+    }
+    let cut: Vec<Target> = untied.iter().map(|&t| targets[t].clone()).collect();
+    let mut observer = Sites(vec![Vec::new(); cut.len()]);
+    rollout(model, &cut, &[base], &mut observer)?;
+    for (i, &t) in untied.iter().enumerate() {
+        // A rollout that diverged ties what it reached.
+        targets[t].tie_sites(&observer.0[i]);
+    }
+    Ok(())
+}
+
+impl SimObjective {
+    /// The loss weights.
+    pub fn weights(&self) -> &LossWeights {
+        &self.weights
+    }
+
+    /// Simulates every candidate (values in the space's order) on every target in one batched
+    /// rollout; outcomes `[candidate][target]`.
+    pub fn rollouts(
+        &mut self,
+        candidates: &[Vec<f64>],
+    ) -> Result<Vec<Vec<RolloutOutcome>>, ReplayError> {
+        let batch: Vec<Candidate> = candidates.iter().map(|c| self.candidate_for(c)).collect();
+        rollout(&self.model, &self.targets, &batch, self.observer.as_mut())
+    }
+
+    /// As [`SimObjective::rollouts`], reporting to `observer` instead of the objective's own.
+    pub fn rollouts_observed(
+        &self,
+        candidates: &[Vec<f64>],
+        observer: &mut dyn Observer,
+    ) -> Result<Vec<Vec<RolloutOutcome>>, ReplayError> {
+        let batch: Vec<Candidate> = candidates.iter().map(|c| self.candidate_for(c)).collect();
+        rollout(&self.model, &self.targets, &batch, observer)
+    }
+}
+
 impl BatchObjective for SimObjective {
     fn evaluate(&mut self, candidates: &[Vec<f64>]) -> Result<Vec<CandidateResult>, String> {
-        let batch: Vec<Candidate> = candidates.iter().map(|c| self.candidate_for(c)).collect();
-        let outcomes = rollout(&self.model, &self.targets, &batch, self.observer.as_mut())
-            .map_err(|e| e.to_string())?;
+        let outcomes = self.rollouts(candidates).map_err(|e| e.to_string())?;
         Ok(outcomes
             .iter()
             .map(|o| summarise(o, &self.weights))
@@ -163,7 +223,13 @@ mod tests {
         let out = rollout(model, std::slice::from_ref(&target), &[candidate], &mut rec).unwrap();
         assert!(out[0][0].diverged.is_none());
         assert_eq!(rec.markers.len(), target.times.len());
+        let sites = (0..target.initial_markers.len())
+            .map(Some)
+            .collect::<Vec<_>>();
+        let tracks = (0..target.initial_markers.len() as u32).collect::<Vec<_>>();
         Target {
+            marker_tracks: vec![tracks; rec.markers.len()],
+            marker_sites: vec![sites; rec.markers.len()],
             markers: rec.markers,
             object: rec.object,
             ..target

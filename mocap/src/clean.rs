@@ -398,6 +398,16 @@ impl CleanedMarkers {
     pub fn frame(&self, k: usize) -> Vec<[f64; 3]> {
         self.tracks.iter().filter_map(|t| t[k]).collect()
     }
+
+    /// The kept markers of frame `k` with the index of their track as the marker id (in track
+    /// order): a physical marker keeps its id through the take.
+    pub fn labelled_frame(&self, k: usize) -> Vec<(u32, [f64; 3])> {
+        self.tracks
+            .iter()
+            .enumerate()
+            .filter_map(|(id, t)| t[k].map(|p| (id as u32, p)))
+            .collect()
+    }
 }
 
 /// Links id fragments into physical-marker tracks (Hungarian re-identification), rejects spurious

@@ -17,8 +17,13 @@ pub const TOOL_HEADER: [&str; 20] = [
 ];
 /// Header of `object.csv`.
 pub const OBJECT_HEADER: [&str; 10] = ["t", "px", "py", "pz", "vx", "vy", "vz", "ax", "ay", "az"];
-/// Header of `markers.csv`.
+/// Header of `markers.csv` without marker identities (the study's recordings).
 pub const MARKERS_HEADER: [&str; 5] = ["frame", "t", "x", "y", "z"];
+/// Header of `markers.csv` with each row's physical marker id.
+pub const LABELLED_MARKERS_HEADER: [&str; 6] = ["frame", "t", "x", "y", "z", "marker"];
+/// Largest marker id a `markers.csv` may carry (a take has tens of markers; the bound keeps a
+/// corrupted id from sizing tables).
+pub const MAX_MARKER_ID: u32 = 100_000;
 
 /// Largest difference (s) allowed between a marker row's time and its frame's tool time.
 const TIME_TOLERANCE_S: f64 = 1e-5;
@@ -407,17 +412,21 @@ pub struct ObjectTrack {
     pub acceleration: Vec<[f64; 3]>,
 }
 
-/// Unlabelled package markers seen in each frame (their order within a frame carries no identity).
+/// Package markers seen in each frame, with the physical marker each point is when the recording
+/// knows it (`markers.csv`'s optional `marker` column; [`crate::tracking`] recovers identities for
+/// recordings without one). Without ids the order within a frame carries no identity.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct MarkerFrames {
     t: Vec<f64>,
     /// `offsets[k]..offsets[k + 1]` indexes `points` for frame k.
     offsets: Vec<usize>,
     points: Vec<[f64; 3]>,
+    /// Physical marker id of each point, parallel to `points`; `None` for unlabelled recordings.
+    ids: Option<Vec<u32>>,
 }
 
 impl MarkerFrames {
-    /// Builds from per-frame point lists and their times.
+    /// Builds from per-frame point lists and their times (unlabelled).
     pub fn from_frames(t: Vec<f64>, frames: Vec<Vec<[f64; 3]>>) -> Self {
         assert_eq!(t.len(), frames.len(), "one time per marker frame");
         let mut offsets = Vec::with_capacity(frames.len() + 1);
@@ -427,7 +436,41 @@ impl MarkerFrames {
             points.extend(frame);
             offsets.push(points.len());
         }
-        MarkerFrames { t, offsets, points }
+        MarkerFrames {
+            t,
+            offsets,
+            points,
+            ids: None,
+        }
+    }
+
+    /// Builds from per-frame `(marker id, point)` lists and their times. An id names one physical
+    /// marker through the whole recording and appears at most once per frame.
+    pub fn from_labelled_frames(t: Vec<f64>, frames: Vec<Vec<(u32, [f64; 3])>>) -> Self {
+        let ids = frames
+            .iter()
+            .flat_map(|frame| frame.iter().map(|(id, _)| *id))
+            .collect();
+        let points = frames
+            .into_iter()
+            .map(|frame| frame.into_iter().map(|(_, p)| p).collect())
+            .collect();
+        MarkerFrames {
+            ids: Some(ids),
+            ..Self::from_frames(t, points)
+        }
+    }
+
+    /// True when every point carries the id of its physical marker.
+    pub fn is_labelled(&self) -> bool {
+        self.ids.is_some()
+    }
+
+    /// The marker ids of frame `k`, parallel to [`MarkerFrames::frame`]; `None` when unlabelled.
+    pub fn frame_ids(&self, k: usize) -> Option<&[u32]> {
+        self.ids
+            .as_ref()
+            .map(|ids| &ids[self.offsets[k]..self.offsets[k + 1]])
     }
 
     /// Number of frames.
@@ -612,9 +655,16 @@ fn read_object(path: &Path) -> Result<ObjectTrack, DataError> {
 }
 
 /// Reads `markers.csv`, whose `frame` column indexes the frames of `times` (the tool's time base).
+/// With a `marker` column every row names its physical marker, at most once per frame.
 fn read_markers(path: &Path, times: &[f64]) -> Result<MarkerFrames, DataError> {
-    let rows = read_rows(path, &MARKERS_HEADER)?;
-    let mut frames: Vec<Vec<[f64; 3]>> = vec![Vec::new(); times.len()];
+    let labelled = first_line(path)?.trim() == LABELLED_MARKERS_HEADER.join(",");
+    let header: &[&str] = if labelled {
+        &LABELLED_MARKERS_HEADER
+    } else {
+        &MARKERS_HEADER
+    };
+    let rows = read_rows(path, header)?;
+    let mut frames: Vec<Vec<(u32, [f64; 3])>> = vec![Vec::new(); times.len()];
     let mut last_frame = 0usize;
     for (line, v) in &rows {
         let malformed = |message: String| DataError::Malformed {
@@ -647,9 +697,45 @@ fn read_markers(path: &Path, times: &[f64]) -> Result<MarkerFrames, DataError> {
             )));
         }
         last_frame = frame;
-        frames[frame].push(vec3(v, 2));
+        let id = if labelled {
+            let id = v[5];
+            if id < 0.0 || id.fract() != 0.0 || id > f64::from(MAX_MARKER_ID) {
+                return Err(malformed(format!(
+                    "marker must be a whole number in 0..={MAX_MARKER_ID}, found {id}"
+                )));
+            }
+            let id = id as u32;
+            if frames[frame].iter().any(|(seen, _)| *seen == id) {
+                return Err(malformed(format!(
+                    "marker {id} appears twice in frame {frame}; expected each marker once per frame"
+                )));
+            }
+            id
+        } else {
+            0
+        };
+        frames[frame].push((id, vec3(v, 2)));
     }
-    Ok(MarkerFrames::from_frames(times.to_vec(), frames))
+    if labelled {
+        Ok(MarkerFrames::from_labelled_frames(times.to_vec(), frames))
+    } else {
+        let frames = frames
+            .into_iter()
+            .map(|f| f.into_iter().map(|(_, p)| p).collect())
+            .collect();
+        Ok(MarkerFrames::from_frames(times.to_vec(), frames))
+    }
+}
+
+/// The first line of a text file (empty for an empty file).
+fn first_line(path: &Path) -> Result<String, DataError> {
+    use std::io::BufRead;
+    let file = fs::File::open(path).map_err(io_error(path))?;
+    let mut line = String::new();
+    std::io::BufReader::new(file)
+        .read_line(&mut line)
+        .map_err(io_error(path))?;
+    Ok(line)
 }
 
 fn read_meta(path: &Path) -> Result<Meta, DataError> {
@@ -848,14 +934,24 @@ impl Trajectory {
         }
         write_atomic(&dir.join("object.csv"), text.as_bytes())?;
 
-        let mut text = MARKERS_HEADER.join(",") + "\n";
+        let header = if self.markers.is_labelled() {
+            &LABELLED_MARKERS_HEADER[..]
+        } else {
+            &MARKERS_HEADER[..]
+        };
+        let mut text = header.join(",") + "\n";
         for k in 0..self.markers.len() {
-            for point in self.markers.frame(k) {
+            let ids = self.markers.frame_ids(k);
+            for (i, point) in self.markers.frame(k).iter().enumerate() {
                 text.push_str(&format!("{k},"));
                 push_row(
                     &mut text,
                     &[self.markers.t(k), point[0], point[1], point[2]],
                 );
+                if let Some(ids) = ids {
+                    text.pop(); // the row's newline: the id follows as a whole number
+                    text.push_str(&format!(",{}\n", ids[i]));
+                }
             }
         }
         write_atomic(&dir.join("markers.csv"), text.as_bytes())
@@ -1036,6 +1132,57 @@ mod tests {
         traj.save(&out).unwrap();
         let again = load_trajectory(&out).unwrap();
         assert_eq!(again, traj);
+    }
+
+    #[test]
+    fn tracked_marker_ids_survive_save_and_load() {
+        let dataset = Dataset::open(&shipped()).unwrap();
+        let mut traj = dataset.load("HHLHL").unwrap();
+        assert!(!traj.markers.is_labelled());
+        let (labelled, report) =
+            crate::track_markers(&traj.markers, &crate::TrackingSettings::default());
+        assert_eq!(report.initial_tracks, traj.markers.frame(0).len());
+        traj.markers = labelled;
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("HHLHL");
+        traj.save(&out).unwrap();
+        let header = fs::read_to_string(out.join("markers.csv")).unwrap();
+        assert!(
+            header.starts_with("frame,t,x,y,z,marker\n"),
+            "{}",
+            &header[..40]
+        );
+        let again = load_trajectory(&out).unwrap();
+        assert!(again.markers.is_labelled());
+        assert_eq!(again.markers.frame_ids(7), traj.markers.frame_ids(7));
+        assert_eq!(again, traj);
+    }
+
+    #[test]
+    fn a_bad_marker_id_names_the_line() {
+        let dataset = Dataset::open(&shipped()).unwrap();
+        let mut traj = dataset.load("HHLHL").unwrap();
+        traj.markers = crate::track_markers(&traj.markers, &crate::TrackingSettings::default()).0;
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("HHLHL");
+        traj.save(&out).unwrap();
+        let path = out.join("markers.csv");
+        let text = fs::read_to_string(&path).unwrap();
+        let second = text.lines().nth(2).unwrap();
+        let (head, _) = second.rsplit_once(',').unwrap();
+        let first_id = text.lines().nth(1).unwrap().rsplit_once(',').unwrap().1;
+        for (bad, words) in [
+            (format!("{head},-1"), "whole number"),
+            (format!("{head},2.5"), "whole number"),
+            (format!("{head},{first_id}"), "appears twice"),
+        ] {
+            fs::write(&path, replace_line(&text, 3, &bad)).unwrap();
+            let message = load_trajectory(&out).unwrap_err().to_string();
+            assert!(
+                message.contains("markers.csv:3") && message.contains(words),
+                "{message}"
+            );
+        }
     }
 
     fn broken_copy(file: &str, edit: impl Fn(&str) -> String) -> (tempfile::TempDir, PathBuf) {

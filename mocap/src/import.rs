@@ -915,7 +915,10 @@ pub fn convert_with_robot(
         meta,
         tool: tool_track,
         object: object_track,
-        markers: MarkerFrames::from_frames(t, frames),
+        markers: MarkerFrames::from_labelled_frames(
+            t,
+            (start..end).map(|k| cleaned.labelled_frame(k)).collect(),
+        ),
     };
     Ok(ImportedTake {
         trajectory,

@@ -10,9 +10,11 @@ pub mod detach;
 pub mod import;
 pub mod motive;
 pub mod robot;
+pub mod tracking;
 
 pub use dataset::{
     load_trajectory, DataError, Dataset, ManifestEntry, MarkerFrames, Meta, ObjectTrack, Split,
     ToolTrack, Trajectory,
 };
 pub use detach::{scan_detachment, Detachment, DetachmentConfig, DetachmentScan};
+pub use tracking::{track_markers, TrackingReport, TrackingSettings};

@@ -8,7 +8,10 @@
 //!   recordings, with per-frame hooks ([`Observer`]) and, for pictures, extra stops and the clock of
 //!   the compared frames ([`Schedule`], [`FrameClock`]);
 //! * [`loss`]: the comparison with the recording: the package Chamfer distance (the one
-//!   implementation in the workspace), the object error, the paper's Table 1;
+//!   implementation in the workspace), the labelled site error, the object error, the paper's
+//!   Table 1;
+//! * [`phase`]: the phases of a recorded motion (rest, lift, move, tilt, hold);
+//! * [`likelihood`]: the labelled, phase-balanced log-likelihood a posterior samples;
 //! * [`seal`]: seal calibration: every recording under a grid of seal capacities against the
 //!   recordings' failure flags and the detachment observed in their markers;
 //! * [`evaluate`]: per-marker errors, the sensitivity perturbation, the real-time factor;
@@ -22,7 +25,9 @@
 
 pub mod error;
 pub mod evaluate;
+pub mod likelihood;
 pub mod loss;
+pub mod phase;
 pub mod rollout;
 pub mod seal;
 pub mod synthetic;
@@ -30,6 +35,8 @@ pub mod target;
 pub mod workload;
 
 pub use error::ReplayError;
+pub use likelihood::{Likelihood, LikelihoodSettings};
+pub use phase::Phase;
 pub use rollout::{
     get_param, mean_loss, rollout, rollout_scheduled, set_param, Candidate, FrameClock,
     FrameObservation, Observer, RolloutOutcome, Schedule, SealFailure, PARAMETER_NAMES,

@@ -19,7 +19,7 @@ use rlpkg_sim::{
 };
 
 use crate::error::ReplayError;
-use crate::loss::{LossWeights, TrajectoryLoss};
+use crate::loss::{FrameComparison, LossWeights, TrajectoryLoss};
 use crate::target::Target;
 
 /// Simulator parameter names that can be set by name: the paper's names, Warp's friction `k_con_f`,
@@ -346,13 +346,15 @@ pub fn rollout_scheduled(
                         .collect();
                     let disc = sim.disc(env);
                     let disc_position = disc.position.map(|v| v as f64);
-                    per_target[t].loss.push_frame(
-                        k,
-                        &points,
-                        &target.markers[k],
-                        &disc_position,
-                        &target.object[k],
-                    );
+                    per_target[t].loss.push_frame(&FrameComparison {
+                        frame: k,
+                        simulated_points: &points,
+                        markers: &target.markers[k],
+                        marker_sites: &target.marker_sites[k],
+                        simulated_object: &disc_position,
+                        recorded_object: &target.object[k],
+                        phase: target.phases[k],
+                    });
                     observer.frame(&FrameObservation {
                         candidate: c,
                         target: t,

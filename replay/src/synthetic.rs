@@ -7,10 +7,10 @@
 //! real data carry over, because a calibration that only ever sees perfect data tells nothing
 //! about how well real data pins a parameter down:
 //!
-//! * **Occlusion**: frame `k` shows only the sites that the real frame `k` shows, taken as the
-//!   sites nearest to the markers recorded in that frame (markers are unlabelled, so "which"
-//!   marker is seen is only known through its position). A frame shows as many markers as the
-//!   real one, at most one per site.
+//! * **Occlusion**: frame `k` shows only the sites that the real frame `k` shows: the sites of its
+//!   markers whose identity is known ([`Target::marker_sites`]), and for the others the sites
+//!   nearest to them. A frame shows as many markers as the real one, at most one per site, and
+//!   every synthetic marker carries its site.
 //! * **Noise**: independent Gaussian noise on every coordinate of every marker and of the object,
 //!   with the standard deviation of the real recording's markers ([`marker_noise_std`]).
 
@@ -119,20 +119,28 @@ pub fn synthetic_targets(
                 rng = StdRng::seed_from_u64(rng.random());
             }
             let mut noisy = |p: [f64; 3]| p.map(|v| v + observation.noise_std_m * normal(&mut rng));
-            let sites = &recorder.markers[t];
-            let markers = sites
+            let simulated = &recorder.markers[t];
+            let visible: Vec<Vec<usize>> = (0..simulated.len())
+                .map(|k| visible_sites(&simulated[k], &target.markers[k], &target.marker_sites[k]))
+                .collect();
+            let markers = visible
                 .iter()
-                .zip(&target.markers)
-                .map(|(sites, recorded)| {
-                    visible_sites(sites, recorded)
-                        .into_iter()
-                        .map(|s| noisy(sites[s]))
-                        .collect()
-                })
+                .zip(simulated)
+                .map(|(seen, sites)| seen.iter().map(|&s| noisy(sites[s])).collect())
+                .collect();
+            let marker_sites = visible
+                .iter()
+                .map(|seen| seen.iter().map(|&s| Some(s)).collect())
+                .collect();
+            let marker_tracks = visible
+                .iter()
+                .map(|seen| seen.iter().map(|&s| s as u32).collect())
                 .collect();
             let object = recorder.object[t].iter().map(|&p| noisy(p)).collect();
             Ok(Target {
                 markers,
+                marker_tracks,
+                marker_sites,
                 object,
                 ..target.clone()
             })
@@ -140,17 +148,23 @@ pub fn synthetic_targets(
         .collect()
 }
 
-/// The sites seen in a frame whose real markers are `recorded`: the site nearest to each recorded
-/// marker, each site once, in site order.
-fn visible_sites(sites: &[[f64; 3]], recorded: &[[f64; 3]]) -> Vec<usize> {
+/// The sites seen in a frame whose real markers are `recorded` with sites `known`: each known
+/// site, and for each marker of unknown site the nearest site not yet seen; each site once, in site
+/// order.
+fn visible_sites(sites: &[[f64; 3]], recorded: &[[f64; 3]], known: &[Option<usize>]) -> Vec<usize> {
     let mut seen = vec![false; sites.len()];
-    for marker in recorded {
-        let nearest = (0..sites.len())
-            .min_by(|&a, &b| {
-                squared_distance(&sites[a], marker).total_cmp(&squared_distance(&sites[b], marker))
-            })
-            .expect("at least one site");
-        seen[nearest] = true;
+    for site in known.iter().flatten() {
+        if let Some(s) = seen.get_mut(*site) {
+            *s = true;
+        }
+    }
+    for (marker, _) in recorded.iter().zip(known).filter(|(_, k)| k.is_none()) {
+        let nearest = (0..sites.len()).filter(|&s| !seen[s]).min_by(|&a, &b| {
+            squared_distance(&sites[a], marker).total_cmp(&squared_distance(&sites[b], marker))
+        });
+        if let Some(nearest) = nearest {
+            seen[nearest] = true;
+        }
     }
     (0..sites.len()).filter(|&s| seen[s]).collect()
 }

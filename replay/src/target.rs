@@ -6,12 +6,18 @@
 
 use std::sync::Arc;
 
-use rlpkg_mocap::Trajectory;
+use rlpkg_mocap::{track_markers, TrackingReport, TrackingSettings, Trajectory};
 use rlpkg_sim::{
     EpisodeSpec, Params, Placement, SceneConfig, SimError, ToolSample, ToolTrajectory,
 };
 
 use crate::error::ReplayError;
+use crate::loss::squared_distance;
+use crate::phase::{phases, Phase};
+
+/// Largest distance (m) at which a first-frame marker is tied to a simulated site: half the markers'
+/// spacing (about 46 mm), beyond which the site is as likely a neighbour's.
+pub const SITE_GATE_M: f64 = 0.023;
 
 /// 6 x 7 marker grid with `between` particles between markers, and optionally the time step.
 pub fn load_scene(
@@ -50,6 +56,17 @@ pub struct Target {
     pub times: Vec<f64>,
     /// Markers seen in each compared frame.
     pub markers: Vec<Vec<[f64; 3]>>,
+    /// The track (physical marker id) of each marker of each compared frame, parallel to `markers`
+    /// ([`rlpkg_mocap::tracking`]).
+    pub marker_tracks: Vec<Vec<u32>>,
+    /// The simulated site (index into `initial_markers`) of each marker of each compared frame,
+    /// parallel to `markers`: `None` until [`Target::tie_sites`], and for a marker whose track was
+    /// not tied (first seen after the first frame, or beyond [`SITE_GATE_M`] of every site).
+    pub marker_sites: Vec<Vec<Option<usize>>>,
+    /// The motion's phase at each compared frame.
+    pub phases: Vec<Phase>,
+    /// How the marker identities were kept through the recording ([`rlpkg_mocap::tracking`]).
+    pub tracking: TrackingReport,
     /// Recorded object position in each compared frame.
     pub object: Vec<[f64; 3]>,
 }
@@ -110,6 +127,11 @@ impl Target {
         if frames == 0 {
             return Err(fail("no frame to compare".into()));
         }
+        let (labelled, tracking) = track_markers(&trajectory.markers, &TrackingSettings::default());
+        let marker_tracks: Vec<Vec<u32>> = (0..frames)
+            .map(|k| labelled.frame_ids(k).expect("tracked").to_vec())
+            .collect();
+        let marker_sites = marker_tracks.iter().map(|f| vec![None; f.len()]).collect();
         Ok(Self {
             id: trajectory.id.clone(),
             placement,
@@ -120,8 +142,90 @@ impl Target {
             markers: (0..frames)
                 .map(|k| trajectory.markers.frame(k).to_vec())
                 .collect(),
+            marker_tracks,
+            marker_sites,
+            phases: phases(&trajectory.tool, frames),
+            tracking,
             object: trajectory.object.position[..frames].to_vec(),
         })
+    }
+
+    /// Ties the recording's tracks to simulated sites, each track at the first frame it is seen:
+    /// the optimal one-to-one assignment (Hungarian) between that frame's new tracks and the sites
+    /// no visible tied track holds, on `sites[k]` (the simulated sites at compared frame `k`, e.g.
+    /// of the scene's own parameters), within [`SITE_GATE_M`]. The sites are the package's row-0
+    /// markers, which the recording's trimmed frames see displaced by the package's sag, so a tie
+    /// is made where both are at the same time. A site that two tracks would show in one frame is
+    /// left unknown there. Returns the tracks tied.
+    pub fn tie_sites(&mut self, sites: &[Vec<[f64; 3]>]) -> usize {
+        use std::collections::HashMap;
+        let mut site_of_track: HashMap<u32, Option<usize>> = HashMap::new();
+        for (k, sites_k) in sites.iter().enumerate().take(self.markers.len()) {
+            let tracks = &self.marker_tracks[k];
+            let new: Vec<usize> = (0..tracks.len())
+                .filter(|&m| !site_of_track.contains_key(&tracks[m]))
+                .collect();
+            if new.is_empty() {
+                continue;
+            }
+            let held: Vec<usize> = tracks
+                .iter()
+                .filter_map(|t| site_of_track.get(t).copied().flatten())
+                .collect();
+            let free: Vec<usize> = (0..sites_k.len()).filter(|s| !held.contains(s)).collect();
+            let cost: Vec<f64> = new
+                .iter()
+                .flat_map(|&m| {
+                    let marker = self.markers[k][m];
+                    free.iter()
+                        .map(move |&s| squared_distance(&marker, &sites_k[s]))
+                })
+                .collect();
+            let pairs =
+                rlpkg_mocap::clean::assign(&cost, new.len(), free.len(), SITE_GATE_M.powi(2));
+            for &m in &new {
+                site_of_track.insert(tracks[m], None);
+            }
+            for (row, col) in pairs {
+                site_of_track.insert(tracks[new[row]], Some(free[col]));
+            }
+        }
+        self.marker_sites = self
+            .marker_tracks
+            .iter()
+            .map(|tracks| {
+                let mut frame: Vec<Option<usize>> = tracks
+                    .iter()
+                    .map(|t| site_of_track.get(t).copied().flatten())
+                    .collect();
+                for m in 0..frame.len() {
+                    if frame[m].is_some() && frame.iter().filter(|s| **s == frame[m]).count() > 1 {
+                        let twice = frame[m];
+                        frame
+                            .iter_mut()
+                            .filter(|s| **s == twice)
+                            .for_each(|s| *s = None);
+                    }
+                }
+                frame
+            })
+            .collect();
+        site_of_track.values().filter(|s| s.is_some()).count()
+    }
+
+    /// Share of the compared markers whose simulated site is known.
+    pub fn labelled_share(&self) -> f64 {
+        let all: usize = self.marker_sites.iter().map(Vec::len).sum();
+        let known: usize = self
+            .marker_sites
+            .iter()
+            .map(|f| f.iter().flatten().count())
+            .sum();
+        if all == 0 {
+            0.0
+        } else {
+            known as f64 / all as f64
+        }
     }
 
     /// The simulator environment that replays this recording with material `params`; the disc mass
@@ -153,5 +257,58 @@ mod tests {
         assert_eq!(s.package.grid, [11, 13]);
         assert!((s.dt() - 1e-4).abs() < 1e-9);
         assert!(load_scene("nonexistent.toml", None, None).is_err());
+    }
+
+    #[test]
+    fn a_tied_track_keeps_its_site_through_the_recording() {
+        let root =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
+        let dataset = rlpkg_mocap::Dataset::open(&root).unwrap();
+        for id in ["HHHHH", "HHLLL", "HHMMM"] {
+            let mut target = Target::new(&dataset.load(id).unwrap(), None, false).unwrap();
+            assert_eq!(target.labelled_share(), 0.0, "untied");
+            // Sites where every frame sees its markers: each track is tied to a site of its own
+            // (at its first frame; a marker that reappears as a new track takes its old site).
+            let mut sites: Vec<Vec<[f64; 3]>> = Vec::new();
+            let mut site_of_track = std::collections::BTreeMap::new();
+            for k in 0..target.markers.len() {
+                for (m, &track) in target.marker_tracks[k].iter().enumerate() {
+                    let n = site_of_track.len();
+                    site_of_track
+                        .entry(track)
+                        .or_insert((n, target.markers[k][m]));
+                    site_of_track.get_mut(&track).unwrap().1 = target.markers[k][m];
+                }
+                let mut frame = vec![[9.0, 9.0, 9.0]; site_of_track.len()];
+                for (site, position) in site_of_track.values() {
+                    frame[*site] = *position;
+                }
+                sites.push(frame);
+            }
+            let tied = target.tie_sites(&sites);
+            assert_eq!(tied, site_of_track.len(), "{id}");
+            for k in [0, target.markers.len() / 2] {
+                for (m, site) in target.marker_sites[k].iter().enumerate() {
+                    assert_eq!(*site, Some(site_of_track[&target.marker_tracks[k][m]].0));
+                }
+            }
+            // A site never shows twice in a frame.
+            for sites in &target.marker_sites {
+                let mut known: Vec<usize> = sites.iter().flatten().copied().collect();
+                let count = known.len();
+                known.sort_unstable();
+                known.dedup();
+                assert_eq!(known.len(), count, "{id}");
+            }
+            assert_eq!(target.labelled_share(), 1.0, "{id}: {:?}", target.tracking);
+            assert_eq!(target.phases.len(), target.times.len());
+            // Sites far from every marker tie nothing.
+            let far: Vec<Vec<[f64; 3]>> = sites
+                .iter()
+                .map(|f| f.iter().map(|p| [p[0] + 1.0, p[1], p[2]]).collect())
+                .collect();
+            assert_eq!(target.tie_sites(&far), 0);
+            assert_eq!(target.labelled_share(), 0.0);
+        }
     }
 }

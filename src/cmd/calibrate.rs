@@ -67,6 +67,9 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     check_bounds_in_scene(&config, &scene, &args.config)?;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let space = config.space();
+    if let Some(smc) = config.smc {
+        return run_posterior(&args, &config, smc, &ids, &trajectories, &scene);
+    }
 
     let planned = {
         let plan = make_plan(&config, &space, Vec::new());
@@ -105,11 +108,13 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         data: &config.data,
         trajectories: &ids,
         max_seconds: config.sim.max_seconds,
-        seed: config.optimiser.seed,
-        initial_points: config.optimiser.initial_points,
-        batch_size: config.optimiser.batch_size,
+        seed: config.optimiser().seed,
+        initial_points: config.optimiser().initial_points,
+        batch_size: config.optimiser().batch_size,
         loss: config.loss,
         param: &config.params,
+        smc: None,
+        likelihood: None,
         scene: &scene,
     }
     .to_text()?;
@@ -159,7 +164,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         scene.package.grid[1],
         scene.dt(),
         planned,
-        config.optimiser.batch_size,
+        config.optimiser().batch_size,
         out_dir.display()
     );
     let created_out_dir = !out_dir.exists();
@@ -242,6 +247,167 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `rlpkg calibrate` of a config with `[smc]`: samples the posterior on the simulator
+/// ([`rlpkg_calib::sampled_posterior`]), resuming the folder's log, and writes the draws, their
+/// summary and the best draw's scene.
+fn run_posterior(
+    args: &CalibrateArgs,
+    config: &CalibrateConfig,
+    smc: rlpkg_calib::smc::SmcSettings,
+    ids: &[String],
+    trajectories: &[Trajectory],
+    scene: &SceneConfig,
+) -> anyhow::Result<()> {
+    use rlpkg_calib::sampled_posterior::{posterior_table, sample_posterior, POSTERIOR_FILES};
+    let out_dir = &config.out_dir;
+    let record = ObjectiveRecord {
+        data: &config.data,
+        trajectories: ids,
+        max_seconds: config.sim.max_seconds,
+        seed: smc.seed,
+        initial_points: smc.particles,
+        batch_size: smc.particles,
+        loss: config.loss,
+        param: &config.params,
+        smc: Some(smc),
+        likelihood: Some(config.likelihood),
+        scene,
+    }
+    .to_text()?;
+    if args.fresh {
+        for file in POSTERIOR_FILES {
+            let path = out_dir.join(file);
+            if path.exists() {
+                std::fs::remove_file(&path).map_err(|err| {
+                    input_error(format!(
+                        "{}: cannot remove (--fresh): {err}",
+                        path.display()
+                    ))
+                })?;
+            }
+        }
+    } else if !fingerprint::check(out_dir, &record).map_err(input_error)?
+        && out_dir.join("evaluations.csv").exists()
+    {
+        return Err(input_error(format!(
+            "{}: has an evaluations.csv but no {}; use --fresh to start over or another --out",
+            out_dir.display(),
+            fingerprint::OBJECTIVE_FILE
+        )));
+    }
+    for path in driver::clean_leftovers(out_dir, &POSTERIOR_FILES).map_err(driver_error)? {
+        eprintln!("removed the leftover temporary {}", path.display());
+    }
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
+    driver::write_atomically(
+        &out_dir.join(fingerprint::OBJECTIVE_FILE),
+        record.as_bytes(),
+    )
+    .map_err(driver_error)?;
+    println!(
+        "sampling the posterior of {} parameter(s) on {} trajectory(ies) [{}], grid {}x{}, dt {:.3e} s, \
+         {} particles x {} moves; output in {}",
+        config.params.len(),
+        ids.len(),
+        ids.join(","),
+        scene.package.grid[0],
+        scene.package.grid[1],
+        scene.dt(),
+        smc.particles,
+        smc.moves,
+        out_dir.display()
+    );
+    let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
+    let bar = ProgressBar::new_spinner().with_style(
+        ProgressStyle::with_template("{elapsed_precise} {msg}").expect("valid template"),
+    );
+    let mut objective = SimObjective::new(
+        scene,
+        names,
+        trajectories,
+        config.loss,
+        config.sim.max_seconds,
+    )
+    .map_err(input_error)?
+    .with_observer(Box::new(BarObserver {
+        bar: bar.clone(),
+        batch_base: Arc::new(AtomicU64::new(0)),
+    }));
+    for target in objective.targets() {
+        let t = &target.tracking;
+        println!(
+            "  {}: {} markers tracked from the first frame ({:.1} % of the points), {} breaks, {} relinked, \
+             {} new tracks; {:.1} % of the points tied to a site",
+            target.id,
+            t.initial_tracks,
+            100.0 * t.initial_share(),
+            t.breaks,
+            t.relinked,
+            t.new_tracks,
+            100.0 * target.labelled_share()
+        );
+    }
+    let started = Instant::now();
+    let _cooperation = crate::interrupt::Cooperation::start();
+    let posterior = sample_posterior(
+        &mut objective,
+        &config.space(),
+        &smc,
+        &config.likelihood,
+        out_dir,
+        |batch, evaluations| {
+            bar.set_message(format!("batch {batch}, {evaluations} candidates simulated"));
+        },
+    );
+    bar.finish_and_clear();
+    let posterior = posterior.map_err(|e| match e {
+        rlpkg_calib::sampled_posterior::SampledPosteriorError::Smc(_) => anyhow::Error::new(e),
+        other => input_error(other),
+    })?;
+    let wall = started.elapsed().as_secs_f64();
+    let calibrated = objective.calibrated_scene(&posterior.best)?;
+    let text = scene_text(
+        &calibrated,
+        &posterior.best,
+        ids,
+        config.sim.max_seconds,
+        &args.config,
+    )?;
+    driver::write_atomically(&out_dir.join("calibrated.toml"), text.as_bytes())
+        .map_err(driver_error)?;
+    if let Some(path) = &args.write_params {
+        driver::write_atomically(path, text.as_bytes()).map_err(driver_error)?;
+    }
+    let space = config.space();
+    let unit: Vec<Vec<f64>> = posterior.draws.iter().map(|d| space.to_unit(d)).collect();
+    let best_values: Vec<f64> = space
+        .names()
+        .iter()
+        .map(|n| posterior.best.params[*n])
+        .collect();
+    let best_unit = space.to_unit(&best_values);
+    let corner = out_dir.join("corner.png");
+    crate::render::plot::write_corner_plot(&corner, &space.names(), &unit, &best_unit)?;
+    print!("{}", posterior_table(&posterior));
+    print!("{}", rlpkg_calib::fisher::fisher_table(&posterior.fisher));
+    println!(
+        "{} candidates simulated in {} stages, {wall:.1} s ({:.1} per s); best log-likelihood {:.2}",
+        posterior.evaluations,
+        posterior.stages,
+        posterior.evaluations as f64 / wall.max(1e-9),
+        posterior.best_log_likelihood
+    );
+    println!(
+        "wrote {}/{{objective.toml, evaluations.csv, stages.csv, samples.csv, posterior.toml, best.toml, fisher.toml, calibrated.toml, corner.png}}",
+        out_dir.display()
+    );
+    if let Some(path) = &args.write_params {
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
 /// The ids and recordings a calibration fits: `trajectories` of `config`, or its dataset's
 /// training split.
 pub(crate) fn training_trajectories(
@@ -315,12 +481,18 @@ fn apply_overrides(config: &mut CalibrateConfig, args: &CalibrateArgs) -> anyhow
         config.out_dir = out.clone();
     }
     if let Some(n) = args.iterations {
+        if config.smc.is_some() {
+            return Err(input_error(format!(
+                "--iterations {n}: the config samples a posterior ([smc]), which has no \
+                 iterations; set smc.particles or smc.moves instead"
+            )));
+        }
         if !(1..=100_000).contains(&n) {
             return Err(input_error(format!(
                 "--iterations {n}: expected an integer in [1, 100000]"
             )));
         }
-        config.optimiser.iterations = n;
+        config.optimiser_mut().iterations = n;
     }
     if !args.trajectories.is_empty() {
         config.trajectories = Some(args.trajectories.clone());
@@ -345,7 +517,7 @@ fn make_plan(
         space: space.clone(),
         settings: config.bo_settings(),
         seed_points,
-        iterations: config.optimiser.iterations,
+        iterations: config.optimiser().iterations,
         out_dir: config.out_dir.clone(),
     }
 }

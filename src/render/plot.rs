@@ -159,6 +159,98 @@ pub fn write_loss_plot(path: &Path, target: &Target, loss: &TrajectoryLoss) -> a
     })
 }
 
+/// Side of one panel of a corner plot (pixels).
+const CORNER_PANEL: u32 = 150;
+
+/// A corner plot of posterior draws: for every pair of parameters a scatter of the draws over the
+/// whole search box (unit-cube coordinates: decades for log parameters), and on the diagonal each
+/// parameter's histogram; the best draw in red. `unit_draws` and `best` are in the unit cube.
+pub fn write_corner_plot(
+    path: &Path,
+    names: &[&str],
+    unit_draws: &[Vec<f64>],
+    best: &[f64],
+) -> anyhow::Result<()> {
+    let d = names.len();
+    let side = CORNER_PANEL * d as u32 + 60;
+    write_plot_sized(path, (side, side), |area| {
+        let inner = area.margin(10, 50, 50, 10);
+        let panels = inner.split_evenly((d, d));
+        for (index, panel) in panels.iter().enumerate() {
+            let (row, col) = (index / d, index % d);
+            if col > row {
+                continue;
+            }
+            let mut builder = ChartBuilder::on(panel);
+            builder.margin(3);
+            if row == d - 1 {
+                builder.x_label_area_size(14);
+            }
+            if col == 0 {
+                builder.y_label_area_size(14);
+            }
+            let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| anyhow::anyhow!("{e}");
+            if row == col {
+                let bins = 20usize;
+                let mut counts = vec![0usize; bins];
+                for draw in unit_draws {
+                    let b = ((draw[col] * bins as f64) as usize).min(bins - 1);
+                    counts[b] += 1;
+                }
+                let top = counts.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.1;
+                let mut chart = builder.build_cartesian_2d(0.0..1.0, 0.0..top).map_err(e)?;
+                let mut mesh = chart.configure_mesh();
+                mesh.disable_mesh().y_labels(0).x_labels(0);
+                if row == d - 1 {
+                    mesh.x_desc(names[col]);
+                }
+                mesh.draw().map_err(e)?;
+                chart
+                    .draw_series(counts.iter().enumerate().map(|(b, &n)| {
+                        let x0 = b as f64 / bins as f64;
+                        Rectangle::new(
+                            [(x0, 0.0), (x0 + 1.0 / bins as f64, n as f64)],
+                            BLUE.mix(0.5).filled(),
+                        )
+                    }))
+                    .map_err(e)?;
+                chart
+                    .draw_series(std::iter::once(PathElement::new(
+                        vec![(best[col], 0.0), (best[col], top)],
+                        RED,
+                    )))
+                    .map_err(e)?;
+            } else {
+                let mut chart = builder.build_cartesian_2d(0.0..1.0, 0.0..1.0).map_err(e)?;
+                let mut mesh = chart.configure_mesh();
+                mesh.disable_mesh().x_labels(0).y_labels(0);
+                if row == d - 1 {
+                    mesh.x_desc(names[col]);
+                }
+                if col == 0 {
+                    mesh.y_desc(names[row]);
+                }
+                mesh.draw().map_err(e)?;
+                chart
+                    .draw_series(
+                        unit_draws
+                            .iter()
+                            .map(|p| Circle::new((p[col], p[row]), 1, BLUE.mix(0.4).filled())),
+                    )
+                    .map_err(e)?;
+                chart
+                    .draw_series(std::iter::once(Circle::new(
+                        (best[col], best[row]),
+                        3,
+                        RED.filled(),
+                    )))
+                    .map_err(e)?;
+            }
+        }
+        Ok(())
+    })
+}
+
 /// Cost per iteration of an optimisation: one line per named series of `(iteration, cost)`.
 pub fn write_cost_plot(
     path: &Path,
@@ -313,8 +405,24 @@ mod tests {
             initial_markers: sites,
             times: vec![0.0, 0.5],
             markers: vec![vec![[0.0, 0.25, 0.0]]; 2],
+            marker_tracks: vec![vec![0]; 2],
+            marker_sites: vec![vec![Some(0)]; 2],
+            phases: vec![rlpkg_replay::Phase::Hold; 2],
+            tracking: Default::default(),
             object: vec![[0.05, 0.2, 0.05]; 2],
         }
+    }
+
+    #[test]
+    fn a_corner_plot_is_a_whole_png_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("corner.png");
+        let draws: Vec<Vec<f64>> = (0..50)
+            .map(|i| vec![i as f64 / 50.0, 0.5, (i % 7) as f64 / 7.0])
+            .collect();
+        write_corner_plot(&path, &["a", "b", "c"], &draws, &[0.2, 0.5, 0.9]).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
     }
 
     #[test]
@@ -324,7 +432,15 @@ mod tests {
         let mut loss = TrajectoryLoss::new("PLOT");
         for k in 0..2 {
             let simulated = [[0.0, 0.25 + 0.01 * k as f64, 0.0]];
-            loss.push_frame(k, &simulated, &target.markers[k], &[0.05; 3], &[0.05; 3]);
+            loss.push_frame(&rlpkg_replay::loss::FrameComparison {
+                frame: k,
+                simulated_points: &simulated,
+                markers: &target.markers[k],
+                marker_sites: &target.marker_sites[k],
+                simulated_object: &[0.05; 3],
+                recorded_object: &[0.05; 3],
+                phase: target.phases[k],
+            });
         }
         let errors_png = dir.path().join("PLOT_marker_error.png");
         let loss_png = dir.path().join("PLOT_loss.png");

@@ -128,6 +128,14 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
     if let Some(truths) = args.recover {
         return recover::run(&args, config, truths as usize, settings);
     }
+    if config.smc.is_some() {
+        return Err(input_error(format!(
+            "{}: samples its posterior on the simulator ([smc]): `rlpkg calibrate` writes its \
+             samples.csv, posterior.toml and fisher.toml; `rlpkg posterior` infers one from a \
+             Bayesian optimisation's evaluations ([optimiser])",
+            args.config.display()
+        )));
+    }
     let calibration = args.from.clone().unwrap_or(config.out_dir.clone());
     if let Some(draws) = args.validate {
         let posterior = args

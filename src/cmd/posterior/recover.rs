@@ -47,7 +47,13 @@ pub fn run(
         config.sim.max_seconds = Some(s);
     }
     if let Some(n) = args.iterations {
-        config.optimiser.iterations = n as usize;
+        if config.smc.is_some() {
+            return Err(input_error(format!(
+                "--iterations {n}: the config samples a posterior ([smc]), which has no \
+                 iterations; set smc.particles or smc.moves instead"
+            )));
+        }
+        config.optimiser_mut().iterations = n as usize;
     }
     let dataset = Dataset::open(&config.data).map_err(input_error)?;
     let ids = if !args.trajectories.is_empty() {
@@ -91,9 +97,21 @@ pub fn run(
         .clone()
         .unwrap_or_else(|| config.out_dir.join("recovery"));
     let space = config.space();
+    if let Some(smc) = config.smc {
+        return run_sampled(
+            args,
+            &config,
+            smc,
+            &scene,
+            &targets,
+            &ids,
+            truths,
+            noise_std_m,
+        );
+    }
     let settings = RecoverySettings {
         optimiser: config.bo_settings(),
-        iterations: config.optimiser.iterations,
+        iterations: config.optimiser().iterations,
         weights: config.loss,
         noise_std_m,
         posterior,
@@ -153,6 +171,105 @@ pub fn run(
     print!("{}", recovery::recovery_table(&recoveries));
     println!();
     println!("{}", rlpkg_calib::posterior::IDENTIFIED_RULE);
+    println!(
+        "{truths} truth(s) in {wall_s:.0} s wall; wrote {}/recovery.json",
+        out.display()
+    );
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct SampledRecoveryFile<'a> {
+    config: &'a std::path::Path,
+    trajectories: &'a [String],
+    max_seconds: Option<f64>,
+    noise_std_m: f64,
+    wall_s: f64,
+    truths: &'a [recovery::SampledTruthRecovery],
+}
+
+/// The recovery of a config that samples its posterior ([smc]): each truth's synthetic recordings
+/// sampled from the prior into `<out>/truth-<k>/`.
+#[allow(clippy::too_many_arguments)]
+fn run_sampled(
+    args: &PosteriorArgs,
+    config: &CalibrateConfig,
+    smc: rlpkg_calib::smc::SmcSettings,
+    scene: &rlpkg_sim::SceneConfig,
+    targets: &[Target],
+    ids: &[String],
+    truths: usize,
+    noise_std_m: f64,
+) -> anyhow::Result<()> {
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| config.out_dir.join("recovery"));
+    let space = config.space();
+    let draws = recovery::draw_truths(&space, truths, args.seed);
+    println!(
+        "recovering {truths} truth(s) of {} parameter(s) with a sampled posterior ({} particles x {} moves) \
+         on {} synthetic trajectory(ies) [{}], marker noise {:.3} mm per axis; output in {}",
+        space.dim(),
+        smc.particles,
+        smc.moves,
+        ids.len(),
+        ids.join(","),
+        1e3 * noise_std_m,
+        out.display()
+    );
+    let _cooperation = crate::interrupt::Cooperation::start();
+    let started = Instant::now();
+    let mut recoveries = Vec::with_capacity(truths);
+    for (k, truth) in draws.iter().enumerate() {
+        let folder = out.join(format!("truth-{k}"));
+        // A recovery always starts over: a log of other synthetic recordings must not be resumed.
+        for file in rlpkg_calib::sampled_posterior::POSTERIOR_FILES {
+            let path = folder.join(file);
+            if path.exists() {
+                std::fs::remove_file(&path)
+                    .map_err(|e| input_error(format!("{}: cannot remove: {e}", path.display())))?;
+            }
+        }
+        let truth_started = Instant::now();
+        let recovered = recovery::recover_sampled(
+            scene,
+            &space,
+            targets,
+            truth,
+            k,
+            &smc,
+            &config.likelihood,
+            config.loss,
+            noise_std_m,
+            args.seed,
+            &folder,
+        )
+        .map_err(|e| match e {
+            RecoveryError::Replay(e) => input_error(format!("truth {k}: {e}")),
+            other => anyhow::Error::new(other),
+        })?;
+        println!(
+            "truth {k}: truth loss {:.4e}, best loss {:.4e}, {} candidates, {:.0} s",
+            recovered.truth_loss,
+            recovered.best_loss,
+            recovered.evaluations,
+            truth_started.elapsed().as_secs_f64()
+        );
+        recoveries.push(recovered);
+    }
+    let wall_s = started.elapsed().as_secs_f64();
+    let json = serde_json::to_string_pretty(&SampledRecoveryFile {
+        config: &args.config,
+        trajectories: ids,
+        max_seconds: config.sim.max_seconds,
+        noise_std_m,
+        wall_s,
+        truths: &recoveries,
+    })?;
+    write_atomic(&out.join("recovery.json"), json.as_bytes()).map_err(output_error)?;
+    println!();
+    print!("{}", recovery::sampled_recovery_table(&recoveries));
     println!(
         "{truths} truth(s) in {wall_s:.0} s wall; wrote {}/recovery.json",
         out.display()

@@ -1,0 +1,329 @@
+//! A calibration that returns the posterior: [`crate::smc`] over the config's box, every candidate
+//! simulated on every recording with the labelled, phase-balanced likelihood
+//! ([`rlpkg_replay::likelihood`]).
+//!
+//! Files in the output folder:
+//! * `evaluations.csv`: every simulated candidate (parameters, `objective` = its log-likelihood,
+//!   the loss, Chamfer, object and site errors), appended after each batch; a rerun into the
+//!   folder serves the logged batches again and continues exactly where it stopped;
+//! * `stages.csv`: the tempering steps (inverse temperature, effective sample size, acceptance);
+//! * `samples.csv`: the posterior draws ([`crate::posterior::samples_csv`], SI values);
+//! * `posterior.toml`: per parameter the median, the 90 % credible interval, its share of the box
+//!   and the best draw's value; the counts and the evidence;
+//! * `best.toml`: the draw of highest likelihood ([`CalibratedParams`]);
+//! * `fisher.toml`: the Fisher information at that draw ([`crate::fisher`]): which combinations
+//!   of parameters the recordings pin down.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use rlpkg_replay::{Likelihood, LikelihoodSettings, RolloutOutcome};
+
+use crate::driver::{write_atomically, write_toml, CalibratedParams, FitSummary};
+use crate::evallog::{EvaluationLog, LogError, LoggedEvaluation};
+use crate::fisher::{fisher_information, FisherAnalysis};
+use crate::objective::{summarise, SimObjective};
+use crate::posterior::{quantile, samples_csv};
+use crate::smc::{self, SmcError, SmcSettings, Stage};
+use crate::space::ParamSpace;
+
+/// The metric columns of a posterior's evaluation log, after `objective` (the log-likelihood).
+pub const POSTERIOR_METRICS: [&str; 4] = ["loss", "chamfer_m", "object_mse_m2", "site_mse_m2"];
+
+/// The files a sampled posterior writes into its output folder.
+pub const POSTERIOR_FILES: [&str; 7] = [
+    crate::fingerprint::OBJECTIVE_FILE,
+    "evaluations.csv",
+    "stages.csv",
+    "samples.csv",
+    "posterior.toml",
+    "best.toml",
+    "fisher.toml",
+];
+
+/// Finite-difference step (unit cube) of the Fisher analysis at the best draw: small against the
+/// posterior's widths, large against the simulator's single-precision noise.
+const FISHER_STEP: f64 = 1e-3;
+
+/// Errors of a sampled posterior.
+#[derive(Debug, thiserror::Error)]
+pub enum SampledPosteriorError {
+    /// The evaluation log could not be read or written.
+    #[error(transparent)]
+    Log(#[from] LogError),
+    /// The sampler failed.
+    #[error(transparent)]
+    Smc(#[from] SmcError),
+    /// A logged batch does not hold the candidates this run asks for.
+    #[error(
+        "{path}: batch {batch} holds other candidates than this run asks for (written with other \
+         sampler settings?); use --fresh to start over"
+    )]
+    LogMismatch {
+        /// The log.
+        path: PathBuf,
+        /// The batch.
+        batch: usize,
+    },
+    /// An output file could not be written.
+    #[error("{0}")]
+    Write(String),
+}
+
+/// One parameter of the posterior.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ParameterInterval {
+    /// Parameter name.
+    pub name: String,
+    /// 5 % quantile of the draws.
+    pub lower_5: f64,
+    /// Median of the draws.
+    pub median: f64,
+    /// 95 % quantile of the draws.
+    pub upper_95: f64,
+    /// Share of the search box the 90 % interval covers (in decades for log parameters).
+    pub box_share: f64,
+    /// The value of the draw of highest likelihood.
+    pub best: f64,
+}
+
+/// The posterior a sampled calibration returns.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SampledPosterior {
+    /// Per-parameter summary, in the search order.
+    pub parameters: Vec<ParameterInterval>,
+    /// Simulated candidates.
+    pub evaluations: usize,
+    /// Tempering steps.
+    pub stages: usize,
+    /// Log evidence `ln ∫ prior · L` (up to the likelihood's constant).
+    pub log_evidence: f64,
+    /// Independent residual coordinates of the package markers and of the object.
+    pub independent_residuals: [f64; 2],
+    /// Highest log-likelihood of the draws.
+    pub best_log_likelihood: f64,
+    /// The draws (SI values), in the search order.
+    #[serde(skip)]
+    pub draws: Vec<Vec<f64>>,
+    /// The tempering steps.
+    #[serde(skip)]
+    pub stage_log: Vec<Stage>,
+    /// The draw of highest likelihood with its metrics.
+    #[serde(skip)]
+    pub best: CalibratedParams,
+    /// The Fisher information at the best draw.
+    #[serde(skip)]
+    pub fisher: FisherAnalysis,
+}
+
+/// Samples (or resumes) the posterior of `objective` over `space` and writes the files of the
+/// module docs into `out_dir`. `on_batch(batch, evaluations)` is called after every batch.
+pub fn sample_posterior(
+    objective: &mut SimObjective,
+    space: &ParamSpace,
+    settings: &SmcSettings,
+    likelihood: &LikelihoodSettings,
+    out_dir: &Path,
+    mut on_batch: impl FnMut(usize, usize),
+) -> Result<SampledPosterior, SampledPosteriorError> {
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| SampledPosteriorError::Write(format!("{}: {e}", out_dir.display())))?;
+    let settings_of_likelihood = *likelihood;
+    let likelihood = Likelihood::new(objective.targets(), likelihood);
+    let names = space.names();
+    let bounds: Vec<(f64, f64)> = space.specs().iter().map(|s| (s.lower, s.upper)).collect();
+    let log_path = out_dir.join("evaluations.csv");
+    let (log, logged) = EvaluationLog::open(&log_path, &names, &POSTERIOR_METRICS, &bounds)?;
+    let mut logged_batches: Vec<Vec<LoggedEvaluation>> = Vec::new();
+    for row in logged {
+        if row.batch == logged_batches.len() {
+            logged_batches.push(Vec::new());
+        }
+        logged_batches[row.batch].push(row);
+    }
+    let mut evaluations = 0usize;
+    let mut all: Vec<LoggedEvaluation> = Vec::new();
+    let mut failure: Option<SampledPosteriorError> = None;
+    let result = smc::sample(space.dim(), settings, |batch, unit| {
+        let values: Vec<Vec<f64>> = unit.iter().map(|u| space.from_unit(u)).collect();
+        let rows = match logged_batches.get(batch) {
+            Some(rows) => {
+                let same = rows.len() == values.len()
+                    && rows.iter().zip(&values).all(|(r, v)| &r.params == v);
+                if !same {
+                    failure = Some(SampledPosteriorError::LogMismatch {
+                        path: log_path.clone(),
+                        batch,
+                    });
+                    return Err("the log does not match".into());
+                }
+                rows.clone()
+            }
+            None => {
+                let outcomes = objective.rollouts(&values).map_err(|e| e.to_string())?;
+                let rows = logged_rows(batch, &values, &outcomes, &likelihood, objective);
+                if let Err(e) = log.append(&rows) {
+                    failure = Some(e.into());
+                    return Err("the log could not be written".into());
+                }
+                rows
+            }
+        };
+        evaluations += rows.len();
+        on_batch(batch, evaluations);
+        let ll = rows.iter().map(|r| r.objective).collect();
+        all.extend(rows);
+        Ok(ll)
+    });
+    let result = match (result, failure) {
+        (_, Some(failure)) => return Err(failure),
+        (result, None) => result?,
+    };
+    let draws: Vec<Vec<f64>> = result.draws.iter().map(|u| space.from_unit(u)).collect();
+    let best_index = (0..draws.len())
+        .max_by(|&a, &b| result.log_likelihoods[a].total_cmp(&result.log_likelihoods[b]))
+        .expect("a population");
+    let best_row = all
+        .iter()
+        .find(|r| r.params == draws[best_index])
+        .expect("every draw was evaluated");
+    let best = CalibratedParams {
+        params: names
+            .iter()
+            .map(|n| n.to_string())
+            .zip(draws[best_index].iter().copied())
+            .collect(),
+        fit: FitSummary {
+            loss: best_row.metrics[0],
+            chamfer_m: best_row.metrics[1],
+            object_mse_m2: best_row.metrics[2],
+            evaluations: all.len(),
+        },
+    };
+    let parameters = intervals(space, &result.draws, &draws[best_index]);
+    let fisher = fisher_information(
+        objective,
+        space,
+        &draws[best_index],
+        &settings_of_likelihood,
+        FISHER_STEP,
+    )
+    .map_err(|e| SampledPosteriorError::Smc(SmcError::Likelihood(e.to_string())))?;
+    let posterior = SampledPosterior {
+        parameters,
+        evaluations: result.evaluations,
+        stages: result.stages.len(),
+        log_evidence: result.log_evidence,
+        independent_residuals: [likelihood.package_count, likelihood.object_count],
+        best_log_likelihood: result.log_likelihoods[best_index],
+        draws,
+        stage_log: result.stages,
+        best,
+        fisher,
+    };
+    write_outputs(out_dir, space, &posterior)?;
+    Ok(posterior)
+}
+
+/// The log rows of one batch: log-likelihood and metrics of every candidate.
+fn logged_rows(
+    batch: usize,
+    values: &[Vec<f64>],
+    outcomes: &[Vec<RolloutOutcome>],
+    likelihood: &Likelihood,
+    objective: &SimObjective,
+) -> Vec<LoggedEvaluation> {
+    values
+        .iter()
+        .zip(outcomes)
+        .enumerate()
+        .map(|(candidate, (params, outcome))| {
+            let summary = summarise(outcome, objective.weights());
+            let n = outcome.len() as f64;
+            let site = outcome
+                .iter()
+                .map(|o| o.loss.balanced_site_sq())
+                .sum::<f64>()
+                / n;
+            LoggedEvaluation {
+                batch,
+                candidate,
+                params: params.clone(),
+                objective: likelihood.log_likelihood(outcome),
+                metrics: vec![summary.loss, summary.chamfer_m, summary.object_mse_m2, site],
+            }
+        })
+        .collect()
+}
+
+/// Median, 90 % interval and box share of each coordinate of `unit_draws`.
+fn intervals(space: &ParamSpace, unit_draws: &[Vec<f64>], best: &[f64]) -> Vec<ParameterInterval> {
+    space
+        .specs()
+        .iter()
+        .enumerate()
+        .map(|(i, spec)| {
+            let mut u: Vec<f64> = unit_draws.iter().map(|d| d[i]).collect();
+            u.sort_by(f64::total_cmp);
+            let at = |q: f64| {
+                let mut point = vec![0.5; space.dim()];
+                point[i] = quantile(&u, q);
+                space.from_unit(&point)[i]
+            };
+            ParameterInterval {
+                name: spec.name.clone(),
+                lower_5: at(0.05),
+                median: at(0.5),
+                upper_95: at(0.95),
+                box_share: quantile(&u, 0.95) - quantile(&u, 0.05),
+                best: best[i],
+            }
+        })
+        .collect()
+}
+
+fn write_outputs(
+    out_dir: &Path,
+    space: &ParamSpace,
+    posterior: &SampledPosterior,
+) -> Result<(), SampledPosteriorError> {
+    let fail = |e: crate::driver::DriverError| SampledPosteriorError::Write(e.to_string());
+    let mut stages =
+        String::from("stage,beta,ess,acceptance,scale,evaluations,best_log_likelihood\n");
+    for (k, s) in posterior.stage_log.iter().enumerate() {
+        stages.push_str(&format!(
+            "{k},{},{},{},{},{},{}\n",
+            s.beta, s.ess, s.acceptance, s.scale, s.evaluations, s.best_log_likelihood
+        ));
+    }
+    write_atomically(&out_dir.join("stages.csv"), stages.as_bytes()).map_err(fail)?;
+    write_atomically(
+        &out_dir.join("samples.csv"),
+        samples_csv(space, &posterior.draws).as_bytes(),
+    )
+    .map_err(fail)?;
+    write_toml(&out_dir.join("posterior.toml"), posterior).map_err(fail)?;
+    write_toml(&out_dir.join("fisher.toml"), &posterior.fisher).map_err(fail)?;
+    write_toml(&out_dir.join("best.toml"), &posterior.best).map_err(fail)
+}
+
+/// The posterior's table: one line per parameter.
+pub fn posterior_table(posterior: &SampledPosterior) -> String {
+    let mut text = format!(
+        "{:<16} {:>12} {:>12} {:>12} {:>12} {:>9}\n",
+        "parameter", "5 %", "median", "95 %", "best", "box share"
+    );
+    for p in &posterior.parameters {
+        text.push_str(&format!(
+            "{:<16} {:>12.4e} {:>12.4e} {:>12.4e} {:>12.4e} {:>8.1} %\n",
+            p.name,
+            p.lower_5,
+            p.median,
+            p.upper_95,
+            p.best,
+            100.0 * p.box_share
+        ));
+    }
+    text
+}
