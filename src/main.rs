@@ -3,6 +3,42 @@
 //! Each subcommand lives in its own module under `cmd/`; this file only parses and dispatches.
 //! The tasks (which environment an id names, built from its settings table) live in `tasks/`.
 
+/// `print!` through [`output`]: a closed pipe or a full disk never panics (see there).
+macro_rules! print {
+    ($($arg:tt)*) => {
+        $crate::output::print(format_args!($($arg)*))
+    };
+}
+
+/// `println!` through [`output`].
+macro_rules! println {
+    () => {
+        $crate::output::print(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::output::print(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+/// `eprint!` through [`output`].
+macro_rules! eprint {
+    ($($arg:tt)*) => {
+        $crate::output::eprint(format_args!($($arg)*))
+    };
+}
+
+/// `eprintln!` through [`output`].
+macro_rules! eprintln {
+    () => {
+        $crate::output::eprint(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::output::eprint(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+mod output;
+
 mod cmd;
 mod error;
 mod files;
@@ -31,7 +67,8 @@ enum Command {
     Export(cmd::export::ExportArgs),
     /// Replay a recorded tool trajectory in the simulator; write CSVs and pictures.
     Simulate(cmd::simulate::SimulateArgs),
-    /// Fit simulator parameters to recorded trajectories with Bayesian optimisation.
+    /// Fit simulator parameters to recorded trajectories (Bayesian optimisation), or sample their
+    /// posterior on the simulator (a config with [smc]).
     Calibrate(cmd::calibrate::CalibrateArgs),
     /// Optimise the transport task's open-loop command with the cross-entropy method.
     Optimize(cmd::optimize::OptimizeArgs),
@@ -67,7 +104,21 @@ fn negative_numbers_as_values(command: clap::Command) -> clap::Command {
 }
 
 fn main() {
-    let matches = negative_numbers_as_values(Cli::command()).get_matches();
+    let matches = match negative_numbers_as_values(Cli::command()).try_get_matches() {
+        Ok(matches) => matches,
+        Err(err) => {
+            // Help and version go to stdout, usage errors to stderr; a stdout that cannot take the
+            // help is an error like any other output's.
+            let code = err.exit_code();
+            if let Err(e) = err.print() {
+                if err.use_stderr() || e.kind() != std::io::ErrorKind::BrokenPipe {
+                    eprintln!("error: standard output: {e}");
+                    std::process::exit(2);
+                }
+            }
+            std::process::exit(code);
+        }
+    };
     let mut cli = Cli::from_arg_matches(&matches).unwrap_or_else(|err| err.exit());
     if let (Command::Eval(args), Some(("eval", given))) = (&mut cli.command, matches.subcommand()) {
         args.given = cmd::eval::TRANSPORT_OPTIONS
@@ -93,5 +144,9 @@ fn main() {
         let err = interrupt::explain(err);
         eprintln!("error: {}", error::message(&err));
         std::process::exit(error::exit_code(&err));
+    }
+    if let Some(e) = output::stdout_error() {
+        eprintln!("error: standard output: {e} (the command finished; its files are written)");
+        std::process::exit(2);
     }
 }

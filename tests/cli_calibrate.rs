@@ -435,3 +435,47 @@ fn samples_a_posterior_on_the_simulator_and_resumes_it_exactly() {
     assert_eq!(iterations.status.code(), Some(2));
     assert!(text(&iterations.stderr).contains("smc.particles"));
 }
+
+#[test]
+fn a_full_or_closed_stdout_neither_panics_nor_loses_the_posterior() {
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "train");
+    let preset = quick_preset(dir.path());
+    let cfg = posterior_config(dir.path(), &data, &preset);
+    let out_dir = dir.path().join("posterior");
+    // A full disk behind stdout: the work is done and written, then exit 2 naming stdout.
+    let full = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(["calibrate", cfg.to_str().unwrap()])
+        .stdout(std::fs::File::create("/dev/full").unwrap())
+        .output()
+        .unwrap();
+    let stderr = text(&full.stderr);
+    assert_eq!(full.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("standard output") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+    let samples = std::fs::read_to_string(out_dir.join("samples.csv")).unwrap();
+    // A reader that went away (`| head`): the command finishes quietly with success.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(["calibrate", cfg.to_str().unwrap(), "--fresh"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let closed = child.wait_with_output().unwrap();
+    assert!(closed.status.success(), "{}", text(&closed.stderr));
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("samples.csv")).unwrap(),
+        samples
+    );
+    // Help into a full stdout is an error too, not a silent success.
+    let help = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .arg("--help")
+        .stdout(std::fs::File::create("/dev/full").unwrap())
+        .output()
+        .unwrap();
+    assert_eq!(help.status.code(), Some(2), "{}", text(&help.stderr));
+}

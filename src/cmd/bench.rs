@@ -1,7 +1,5 @@
 //! `rlpkg bench ...`: benchmarks that print throughput figures.
 
-use std::io::Write;
-
 use clap::{Args, Subcommand};
 use rlpkg_agents::config::check_memory;
 
@@ -175,12 +173,11 @@ fn run_sim(args: SimBenchArgs) -> anyhow::Result<()> {
             row,
         }));
     }
-    let mut stdout = std::io::stdout().lock();
     if args.json {
         eprint!("{table}");
-        writeln!(stdout, "{}", serde_json::to_string_pretty(&rows)?)?;
+        println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {
-        write!(stdout, "{table}")?;
+        print!("{table}");
     }
     Ok(())
 }
