@@ -15,8 +15,8 @@
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
 //! * [`config`] — `configs/calibrate/study.toml`;
 //!
-//! The replay set-up (scene, targets, batched rollouts), the structured loss ([`loss`]) and the
-//! evaluation helpers ([`evaluate`]) live in `rlpkg-replay`, which this crate builds on.
+//! The replay set-up (scene, targets, batched rollouts), the losses, the likelihood and the
+//! evaluation helpers live in `rlpkg-replay`, which this crate builds on.
 
 pub mod bo;
 pub mod config;
@@ -32,7 +32,3 @@ pub mod recovery;
 pub mod sampled_posterior;
 pub mod smc;
 pub mod space;
-
-/// The loss and the evaluation helpers live with the replay set-up; re-exported under their old
-/// paths.
-pub use rlpkg_replay::{evaluate, loss};

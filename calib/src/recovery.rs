@@ -410,9 +410,10 @@ mod tests {
         rlpkg_mocap::Dataset::open(&root).unwrap().load(id).unwrap()
     }
 
-    #[test]
-    fn recovers_an_identified_parameter_and_reports_a_parameter_without_effect_as_not_identified() {
-        // Coarse 6 x 7 grid, short rest, 0.2 s of the recorded HHHHH tool motion: seconds of CPU.
+    /// Coarse 6 x 7 grid, short rest, 0.2 s of the recorded HHHHH tool motion (seconds of CPU): the
+    /// scene, a box of the membrane's stiffness and of a parameter without effect, the recording
+    /// and its marker noise.
+    fn two_parameter_case() -> (SceneConfig, ParamSpace, Target, f64) {
         let mut scene = load_scene("reference", Some(0), None).unwrap();
         scene.cups.rest_time_s = 0.1;
         // The disc slips through the 6 x 7 sheet; the check is about the inference.
@@ -435,6 +436,12 @@ mod tests {
         .unwrap();
         let real = Target::new(&recorded("HHHHH"), Some(0.2), false).unwrap();
         let noise = rlpkg_replay::synthetic::marker_noise_std(&real).unwrap();
+        (scene, space, real, noise)
+    }
+
+    #[test]
+    fn recovers_an_identified_parameter_and_reports_a_parameter_without_effect_as_not_identified() {
+        let (scene, space, real, noise) = two_parameter_case();
         let settings = RecoverySettings {
             optimiser: BoSettings {
                 initial_points: 8,
@@ -500,26 +507,7 @@ mod tests {
 
     #[test]
     fn a_sampled_posterior_covers_the_truth_of_an_identifiable_parameter() {
-        let mut scene = load_scene("reference", Some(0), None).unwrap();
-        scene.cups.rest_time_s = 0.1;
-        scene.health.object_outside = false;
-        let space = ParamSpace::new(vec![
-            ParamSpec {
-                name: "k_tri_e".into(),
-                lower: 1.0e3,
-                upper: 1.0e6,
-                log: true,
-            },
-            ParamSpec {
-                name: WITHOUT_EFFECT.into(),
-                lower: 1.0e-3,
-                upper: 1.0e1,
-                log: true,
-            },
-        ])
-        .unwrap();
-        let real = Target::new(&recorded("HHHHH"), Some(0.2), false).unwrap();
-        let noise = rlpkg_replay::synthetic::marker_noise_std(&real).unwrap();
+        let (scene, space, real, noise) = two_parameter_case();
         let smc = crate::smc::SmcSettings {
             particles: 48,
             ess_fraction: 0.5,

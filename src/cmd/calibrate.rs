@@ -143,17 +143,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         eprintln!("removed the leftover temporary {}", path.display());
     }
     if args.fresh {
-        for file in driver::OUTPUT_FILES {
-            let path = out_dir.join(file);
-            if path.exists() {
-                std::fs::remove_file(&path).map_err(|err| {
-                    input_error(format!(
-                        "{}: cannot remove (--fresh): {err}",
-                        path.display()
-                    ))
-                })?;
-            }
-        }
+        remove_outputs(out_dir, &driver::OUTPUT_FILES)?;
     }
     println!(
         "calibrating {} parameter(s) on {} trajectory(ies) [{}], grid {}x{}, dt {:.3e} s, {} batch(es) of {}; output in {}",
@@ -275,17 +265,7 @@ fn run_posterior(
     }
     .to_text()?;
     if args.fresh {
-        for file in POSTERIOR_FILES {
-            let path = out_dir.join(file);
-            if path.exists() {
-                std::fs::remove_file(&path).map_err(|err| {
-                    input_error(format!(
-                        "{}: cannot remove (--fresh): {err}",
-                        path.display()
-                    ))
-                })?;
-            }
-        }
+        remove_outputs(out_dir, &POSTERIOR_FILES)?;
     } else if !fingerprint::check(out_dir, &record).map_err(input_error)?
         && out_dir.join("evaluations.csv").exists()
     {
@@ -404,6 +384,22 @@ fn run_posterior(
     );
     if let Some(path) = &args.write_params {
         println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// `--fresh`: removes the output folder's `files` that exist.
+fn remove_outputs(out_dir: &Path, files: &[&str]) -> anyhow::Result<()> {
+    for file in files {
+        let path = out_dir.join(file);
+        if path.exists() {
+            std::fs::remove_file(&path).map_err(|err| {
+                input_error(format!(
+                    "{}: cannot remove (--fresh): {err}",
+                    path.display()
+                ))
+            })?;
+        }
     }
     Ok(())
 }

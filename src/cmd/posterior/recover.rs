@@ -21,14 +21,27 @@ use super::PosteriorArgs;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 
+/// `recovery.json`: what was recovered and how, then every truth's recovery.
 #[derive(Serialize)]
-struct RecoveryFile<'a> {
+struct RecoveryFile<'a, T: Serialize> {
     config: &'a std::path::Path,
     trajectories: &'a [String],
     max_seconds: Option<f64>,
     noise_std_m: f64,
     wall_s: f64,
-    truths: &'a [recovery::TruthRecovery],
+    truths: &'a [T],
+}
+
+/// A recovery always starts over: a log of other synthetic recordings must not be resumed.
+fn remove_outputs(folder: &std::path::Path, files: &[&str]) -> anyhow::Result<()> {
+    for file in files {
+        let path = folder.join(file);
+        if path.exists() {
+            std::fs::remove_file(&path)
+                .map_err(|e| input_error(format!("{}: cannot remove: {e}", path.display())))?;
+        }
+    }
+    Ok(())
 }
 
 /// Runs the recovery of `truths` parameter sets.
@@ -136,14 +149,7 @@ pub fn run(
     let mut recoveries = Vec::with_capacity(truths);
     for (k, truth) in draws.iter().enumerate() {
         let folder = out.join(format!("truth-{k}"));
-        // A recovery always starts over: a log of other synthetic recordings must not be resumed.
-        for file in driver::OUTPUT_FILES {
-            let path = folder.join(file);
-            if path.exists() {
-                std::fs::remove_file(&path)
-                    .map_err(|e| input_error(format!("{}: cannot remove: {e}", path.display())))?;
-            }
-        }
+        remove_outputs(&folder, &driver::OUTPUT_FILES)?;
         let truth_started = Instant::now();
         let recovered = recovery::recover(&scene, &space, &targets, truth, k, &settings, &folder)
             .map_err(|e| match e {
@@ -176,16 +182,6 @@ pub fn run(
         out.display()
     );
     Ok(())
-}
-
-#[derive(Serialize)]
-struct SampledRecoveryFile<'a> {
-    config: &'a std::path::Path,
-    trajectories: &'a [String],
-    max_seconds: Option<f64>,
-    noise_std_m: f64,
-    wall_s: f64,
-    truths: &'a [recovery::SampledTruthRecovery],
 }
 
 /// The recovery of a config that samples its posterior ([smc]): each truth's synthetic recordings
@@ -223,14 +219,7 @@ fn run_sampled(
     let mut recoveries = Vec::with_capacity(truths);
     for (k, truth) in draws.iter().enumerate() {
         let folder = out.join(format!("truth-{k}"));
-        // A recovery always starts over: a log of other synthetic recordings must not be resumed.
-        for file in rlpkg_calib::sampled_posterior::POSTERIOR_FILES {
-            let path = folder.join(file);
-            if path.exists() {
-                std::fs::remove_file(&path)
-                    .map_err(|e| input_error(format!("{}: cannot remove: {e}", path.display())))?;
-            }
-        }
+        remove_outputs(&folder, &rlpkg_calib::sampled_posterior::POSTERIOR_FILES)?;
         let truth_started = Instant::now();
         let recovered = recovery::recover_sampled(
             scene,
@@ -259,7 +248,7 @@ fn run_sampled(
         recoveries.push(recovered);
     }
     let wall_s = started.elapsed().as_secs_f64();
-    let json = serde_json::to_string_pretty(&SampledRecoveryFile {
+    let json = serde_json::to_string_pretty(&RecoveryFile {
         config: &args.config,
         trajectories: ids,
         max_seconds: config.sim.max_seconds,
