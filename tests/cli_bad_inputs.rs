@@ -354,6 +354,32 @@ fn cases() -> Vec<Case> {
             expected: &["--latency", "1000000000000", "1000000"],
         },
         Case {
+            name: "no environment copies in the PPO benchmark",
+            setup: |_| args(&["bench", "ppo", "--num-envs", "0"]),
+            expected: &["--num-envs", "0", "1..=65536"],
+        },
+        Case {
+            name: "a burn-in beyond any chain",
+            setup: |_| {
+                let config = repo().join("configs/calibrate/study.toml");
+                args(&[
+                    "posterior",
+                    config.to_str().unwrap(),
+                    "--burn-in",
+                    "1000000000000",
+                ])
+            },
+            expected: &["--burn-in", "1000000000000", "0..=1000000"],
+        },
+        Case {
+            name: "a posterior config given to the surrogate posterior",
+            setup: |_| {
+                let config = repo().join("configs/calibrate/posterior-real-film.toml");
+                args(&["posterior", config.to_str().unwrap()])
+            },
+            expected: &["posterior-real-film.toml", "[smc]", "rlpkg calibrate"],
+        },
+        Case {
             name: "more simulated environments than memory",
             setup: |_| {
                 args(&[

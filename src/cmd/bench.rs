@@ -244,9 +244,10 @@ pub struct PpoBenchArgs {
     /// Lockstep steps of the environment benchmark (0 skips it; at most 10 million).
     #[arg(long, default_value_t = 20000, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
     pub env_steps: u64,
-    /// Copies in the environment benchmark.
-    #[arg(long, default_value_t = 64)]
-    pub num_envs: usize,
+    /// Copies in the environment benchmark (1 to 65536).
+    #[arg(long, default_value_t = 64,
+          value_parser = clap::value_parser!(u64).range(1..=65_536))]
+    pub num_envs: u64,
     /// Print the results as JSON.
     #[arg(long)]
     pub json: bool,
@@ -298,7 +299,7 @@ fn run_ppo(args: PpoBenchArgs) -> anyhow::Result<()> {
     if env_steps > 0 {
         check_memory(
             &format!("--num-envs {}", args.num_envs),
-            rlpkg_agents::runners::evaluation_memory_bytes(args.num_envs, 4, 0),
+            rlpkg_agents::runners::evaluation_memory_bytes(args.num_envs as usize, 4, 0),
         )
         .map_err(input_error)?;
     }
@@ -359,7 +360,7 @@ fn run_ppo(args: PpoBenchArgs) -> anyhow::Result<()> {
     let mut envs = Vec::new();
     if env_steps > 0 {
         for task in Task::without_settings() {
-            let mut env = task.build(args.num_envs.max(1))?;
+            let mut env = task.build(args.num_envs as usize)?;
             let result = env_throughput(env.as_mut(), env_steps)?;
             eprintln!(
                 "env {} x{}: {:.3e} steps/s",

@@ -57,9 +57,10 @@ pub struct PosteriorArgs {
     /// Likelihood threshold as a loss instead (e.g. 1.1 x the best loss).
     #[arg(long, value_name = "LOSS")]
     pub epsilon_loss: Option<f64>,
-    /// Sampler steps discarded at the start.
-    #[arg(long, value_name = "N", default_value_t = 1000)]
-    pub burn_in: usize,
+    /// Sampler steps discarded at the start (at most one million).
+    #[arg(long, value_name = "N", default_value_t = 1000,
+          value_parser = clap::value_parser!(u64).range(0..=1_000_000))]
+    pub burn_in: u64,
     /// Keep every N-th sampler step.
     #[arg(long, value_name = "N", default_value_t = 10,
           value_parser = clap::value_parser!(u64).range(1..=10_000))]
@@ -120,7 +121,7 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
     let settings = PosteriorSettings {
         threshold,
         draws: args.samples as usize,
-        burn_in: args.burn_in,
+        burn_in: args.burn_in as usize,
         thin: args.thin as usize,
         seed: args.seed,
         ..PosteriorSettings::default()
