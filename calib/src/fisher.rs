@@ -269,7 +269,7 @@ pub fn fisher_information(
     // Length-weighted mean correlation time over the series of at least MIN_SERIES frames.
     let (mut weighted, mut total) = (0.0, 0.0);
     for ((t, _, _), series) in &observer.series {
-        let rate = frame_rate(&targets[*t]);
+        let rate = targets[*t].frame_rate();
         if series.len() >= MIN_SERIES {
             weighted += integrated_autocorrelation(series) / rate * series.len() as f64;
             total += series.len() as f64;
@@ -355,17 +355,6 @@ pub fn fisher_information(
         errors_m2: [s_p, s_o],
         residual_correlation_s,
     })
-}
-
-/// Compared frames per second of a recording.
-fn frame_rate(target: &Target) -> f64 {
-    let n = target.times.len();
-    let span = target.duration() - target.times.first().copied().unwrap_or(0.0);
-    if n > 1 && span > 0.0 {
-        (n - 1) as f64 / span
-    } else {
-        1.0
-    }
 }
 
 /// The analysis as text: per parameter its Cramér–Rao interval, then the eigen-directions with

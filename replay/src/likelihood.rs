@@ -53,13 +53,7 @@ impl Likelihood {
         let mut object_count = 0.0;
         for target in targets {
             let frames = target.times.len();
-            let span = target.duration() - target.times.first().copied().unwrap_or(0.0);
-            let rate = if frames > 1 && span > 0.0 {
-                (frames - 1) as f64 / span
-            } else {
-                1.0
-            };
-            let per_observation = (settings.decorrelation_s * rate).max(1.0);
+            let per_observation = (settings.decorrelation_s * target.frame_rate()).max(1.0);
             let labelled: usize = target
                 .marker_sites
                 .iter()

@@ -123,7 +123,7 @@ pub fn synthetic_targets(
             let visible: Vec<Vec<usize>> = (0..simulated.len())
                 .map(|k| visible_sites(&simulated[k], &target.markers[k], &target.marker_sites[k]))
                 .collect();
-            let markers = visible
+            let markers: Vec<Vec<[f64; 3]>> = visible
                 .iter()
                 .zip(simulated)
                 .map(|(seen, sites)| seen.iter().map(|&s| noisy(sites[s])).collect())
@@ -132,15 +132,28 @@ pub fn synthetic_targets(
                 .iter()
                 .map(|seen| seen.iter().map(|&s| Some(s)).collect())
                 .collect();
-            let marker_tracks = visible
+            let marker_tracks: Vec<Vec<u32>> = visible
                 .iter()
                 .map(|seen| seen.iter().map(|&s| s as u32).collect())
                 .collect();
+            // Identities are the sites themselves; the report counts them as recorded.
+            let labelled = rlpkg_mocap::MarkerFrames::from_labelled_frames(
+                target.times.clone(),
+                marker_tracks
+                    .iter()
+                    .zip(&markers)
+                    .map(|(ids, points): (&Vec<u32>, &Vec<[f64; 3]>)| {
+                        ids.iter().copied().zip(points.iter().copied()).collect()
+                    })
+                    .collect(),
+            );
+            let tracking = Some(rlpkg_mocap::track_markers(&labelled, &Default::default()).1);
             let object = recorder.object[t].iter().map(|&p| noisy(p)).collect();
             Ok(Target {
                 markers,
                 marker_tracks,
                 marker_sites,
+                tracking,
                 object,
                 ..target.clone()
             })

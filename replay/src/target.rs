@@ -6,7 +6,7 @@
 
 use std::sync::Arc;
 
-use rlpkg_mocap::{track_markers, TrackingReport, TrackingSettings, Trajectory};
+use rlpkg_mocap::{track_markers, MarkerFrames, TrackingReport, TrackingSettings, Trajectory};
 use rlpkg_sim::{
     EpisodeSpec, Params, Placement, SceneConfig, SimError, ToolSample, ToolTrajectory,
 };
@@ -57,7 +57,7 @@ pub struct Target {
     /// Markers seen in each compared frame.
     pub markers: Vec<Vec<[f64; 3]>>,
     /// The track (physical marker id) of each marker of each compared frame, parallel to `markers`
-    /// ([`rlpkg_mocap::tracking`]).
+    /// ([`rlpkg_mocap::tracking`]); one empty list per frame until [`Target::track`].
     pub marker_tracks: Vec<Vec<u32>>,
     /// The simulated site (index into `initial_markers`) of each marker of each compared frame,
     /// parallel to `markers`: `None` until [`Target::tie_sites`], and for a marker whose track was
@@ -65,8 +65,10 @@ pub struct Target {
     pub marker_sites: Vec<Vec<Option<usize>>>,
     /// The motion's phase at each compared frame.
     pub phases: Vec<Phase>,
-    /// How the marker identities were kept through the recording ([`rlpkg_mocap::tracking`]).
-    pub tracking: TrackingReport,
+    /// How the marker identities were kept through the recording ([`rlpkg_mocap::tracking`]);
+    /// `None` until [`Target::track`] (only the labelled loss needs identities, so a replay,
+    /// an evaluation or a transport episode does not pay for them).
+    pub tracking: Option<TrackingReport>,
     /// Recorded object position in each compared frame.
     pub object: Vec<[f64; 3]>,
 }
@@ -127,11 +129,10 @@ impl Target {
         if frames == 0 {
             return Err(fail("no frame to compare".into()));
         }
-        let (labelled, tracking) = track_markers(&trajectory.markers, &TrackingSettings::default());
-        let marker_tracks: Vec<Vec<u32>> = (0..frames)
-            .map(|k| labelled.frame_ids(k).expect("tracked").to_vec())
+        let markers: Vec<Vec<[f64; 3]>> = (0..frames)
+            .map(|k| trajectory.markers.frame(k).to_vec())
             .collect();
-        let marker_sites = marker_tracks.iter().map(|f| vec![None; f.len()]).collect();
+        let marker_sites = markers.iter().map(|f| vec![None; f.len()]).collect();
         Ok(Self {
             id: trajectory.id.clone(),
             placement,
@@ -139,13 +140,11 @@ impl Target {
             tool: Arc::new(tool),
             initial_markers,
             times: (0..frames).map(|k| trajectory.markers.t(k)).collect(),
-            markers: (0..frames)
-                .map(|k| trajectory.markers.frame(k).to_vec())
-                .collect(),
-            marker_tracks,
+            markers,
+            marker_tracks: vec![Vec::new(); frames],
             marker_sites,
             phases: phases(&trajectory.tool, frames),
-            tracking,
+            tracking: None,
             object: trajectory.object.position[..frames].to_vec(),
         })
     }
@@ -159,6 +158,7 @@ impl Target {
     /// left unknown there. Returns the tracks tied.
     pub fn tie_sites(&mut self, sites: &[Vec<[f64; 3]>]) -> usize {
         use std::collections::HashMap;
+        self.track();
         let mut site_of_track: HashMap<u32, Option<usize>> = HashMap::new();
         for (k, sites_k) in sites.iter().enumerate().take(self.markers.len()) {
             let tracks = &self.marker_tracks[k];
@@ -211,6 +211,31 @@ impl Target {
             })
             .collect();
         site_of_track.values().filter(|s| s.is_some()).count()
+    }
+
+    /// Gives every compared marker its track ([`rlpkg_mocap::track_markers`] over the compared
+    /// frames), once.
+    pub fn track(&mut self) {
+        if self.tracking.is_some() {
+            return;
+        }
+        let frames = MarkerFrames::from_frames(self.times.clone(), self.markers.clone());
+        let (labelled, report) = track_markers(&frames, &TrackingSettings::default());
+        self.marker_tracks = (0..labelled.len())
+            .map(|k| labelled.frame_ids(k).expect("tracked").to_vec())
+            .collect();
+        self.tracking = Some(report);
+    }
+
+    /// Compared frames per second (1 for a single frame).
+    pub fn frame_rate(&self) -> f64 {
+        let n = self.times.len();
+        let span = self.duration() - self.times.first().copied().unwrap_or(0.0);
+        if n > 1 && span > 0.0 {
+            (n - 1) as f64 / span
+        } else {
+            1.0
+        }
     }
 
     /// Share of the compared markers whose simulated site is known.
@@ -267,6 +292,7 @@ mod tests {
         for id in ["HHHHH", "HHLLL", "HHMMM"] {
             let mut target = Target::new(&dataset.load(id).unwrap(), None, false).unwrap();
             assert_eq!(target.labelled_share(), 0.0, "untied");
+            target.track();
             // Sites where every frame sees its markers: each track is tied to a site of its own
             // (at its first frame; a marker that reappears as a new track takes its old site).
             let mut sites: Vec<Vec<[f64; 3]>> = Vec::new();

@@ -162,13 +162,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     // its log has been read back without error, at the end.
     let fresh_start = !recorded && !out_dir.join("evaluations.csv").exists();
     if fresh_start {
-        std::fs::create_dir_all(out_dir)
-            .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
-        driver::write_atomically(
-            &out_dir.join(fingerprint::OBJECTIVE_FILE),
-            record.as_bytes(),
-        )
-        .map_err(driver_error)?;
+        write_record(out_dir, &record)?;
     }
     let started = Instant::now();
     // A signal stops the rollout of the current batch (whose rows are not logged) and the
@@ -278,13 +272,7 @@ fn run_posterior(
     for path in driver::clean_leftovers(out_dir, &POSTERIOR_FILES).map_err(driver_error)? {
         eprintln!("removed the leftover temporary {}", path.display());
     }
-    std::fs::create_dir_all(out_dir)
-        .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
-    driver::write_atomically(
-        &out_dir.join(fingerprint::OBJECTIVE_FILE),
-        record.as_bytes(),
-    )
-    .map_err(driver_error)?;
+    write_record(out_dir, &record)?;
     println!(
         "sampling the posterior of {} parameter(s) on {} trajectory(ies) [{}], grid {}x{}, dt {:.3e} s, \
          {} particles x {} moves; output in {}",
@@ -315,7 +303,9 @@ fn run_posterior(
         batch_base: Arc::new(AtomicU64::new(0)),
     }));
     for target in objective.targets() {
-        let t = &target.tracking;
+        let Some(t) = &target.tracking else {
+            continue; // synthetic or given identities: nothing was tracked
+        };
         println!(
             "  {}: {} markers tracked from the first frame ({:.1} % of the points), {} breaks, {} relinked, \
              {} new tracks; {:.1} % of the points tied to a site",
@@ -386,6 +376,17 @@ fn run_posterior(
         println!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// Creates the output folder and writes the objective `record` into it.
+fn write_record(out_dir: &Path, record: &str) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out_dir)
+        .map_err(|e| input_error(format!("{}: cannot create: {e}", out_dir.display())))?;
+    driver::write_atomically(
+        &out_dir.join(fingerprint::OBJECTIVE_FILE),
+        record.as_bytes(),
+    )
+    .map_err(driver_error)
 }
 
 /// `--fresh`: removes the output folder's `files` that exist.
