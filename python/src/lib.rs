@@ -16,15 +16,11 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use rlpkg_env::{Transport, TransportConfig};
+use rlpkg_env::tasks::{Task, IDS};
 use rlpkg_vec_env::digest::rollout_digest;
 use rlpkg_vec_env::{
-    AutoresetMode, CartPole, EnvError, Pendulum, ResetCopies, Seeding, SpaceKind, StepBuffers,
-    VecEnv,
+    AutoresetMode, EnvError, ResetCopies, Seeding, SpaceKind, StepBuffers, VecEnv,
 };
-
-/// The ids [`build`] knows.
-const IDS: [&str; 3] = ["CartPole-v1", "Pendulum-v1", "Transport-v0"];
 
 fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
@@ -57,72 +53,13 @@ fn thread_pool(num_threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
         .map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
-/// A relative path of the `[transport]` table (`scene`, `recordings`) as found from the working
-/// folder, else from the configuration file's folder or one of its parents (a configuration in
-/// the repository's `configs/train/` names paths relative to the repository).
-fn resolve(relative: &str, config: &Path) -> Option<PathBuf> {
-    let path = Path::new(relative);
-    if path.is_absolute() || path.exists() {
-        return None;
-    }
-    let folder = config.parent()?.canonicalize().ok()?;
-    folder
-        .ancestors()
-        .map(|dir| dir.join(path))
-        .find(|candidate| candidate.exists())
-}
-
-/// The `[transport]` table of the file at `path`, its relative paths resolved.
-fn transport_config(path: &Path) -> Result<TransportConfig, EnvError> {
-    let source = path.display().to_string();
-    let fail = |message: String| EnvError::ConfigParse {
-        file: source.clone(),
-        message,
-    };
-    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
-    let mut file: toml::Table = text
-        .parse()
-        .map_err(|e: toml::de::Error| fail(e.to_string()))?;
-    let Some(toml::Value::Table(table)) = file.get_mut("transport") else {
-        return Err(fail(
-            "no [transport] table; expected a Transport-v0 configuration".into(),
-        ));
-    };
-    for key in ["scene", "recordings"] {
-        if let Some(toml::Value::String(value)) = table.get_mut(key) {
-            if let Some(found) = resolve(value, path) {
-                *value = found.display().to_string();
-            }
-        }
-    }
-    TransportConfig::from_table(table, &source)
-}
-
-/// `num_envs` copies of environment `id` (`config`: a Transport-v0 configuration file).
+/// `num_envs` copies of environment `id` (`config`: a Transport-v0 configuration file), built by
+/// the task registry the CLI builds from.
 fn build(id: &str, num_envs: usize, config: Option<&Path>) -> Result<Box<dyn VecEnv>, EnvError> {
     if num_envs == 0 {
         return Err(EnvError::NoEnvs(0));
     }
-    match (id, config) {
-        ("CartPole-v1", _) => Ok(Box::new(CartPole::new(num_envs))),
-        ("Pendulum-v1", _) => Ok(Box::new(Pendulum::new(num_envs))),
-        ("Transport-v0", Some(path)) => {
-            let source = path.display().to_string();
-            Ok(Box::new(Transport::new(
-                transport_config(path)?,
-                num_envs,
-                &source,
-            )?))
-        }
-        ("Transport-v0", None) => Err(EnvError::NeedsSettings {
-            id: id.into(),
-            table: "transport".into(),
-        }),
-        _ => Err(EnvError::UnknownId {
-            id: id.into(),
-            known: IDS.iter().map(|s| s.to_string()).collect(),
-        }),
-    }
+    Task::from_file(id, config)?.build(num_envs)
 }
 
 fn autoreset_mode(name: &str) -> PyResult<AutoresetMode> {

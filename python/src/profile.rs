@@ -13,7 +13,9 @@ use rlpkg_env::transport::{
     plan_path_profile, MotionLimits, PathProfile, ProfileRateAction, TransportLimits,
 };
 
-use crate::{transport_config, value_error};
+use rlpkg_env::tasks::read_transport_config;
+
+use crate::value_error;
 
 /// A path given as poses at increasing arc length: positions joined by straight segments, the
 /// tilt interpolated linearly along them.
@@ -124,7 +126,7 @@ impl ProfileReference {
         positions: PyReadonlyArray2<f64>,
         tilts: PyReadonlyArray1<f64>,
     ) -> PyResult<Self> {
-        let settings = transport_config(&config).map_err(value_error)?;
+        let settings = read_transport_config(&config).map_err(value_error)?;
         let Some(action) = settings.profile_rate else {
             return Err(value_error(format!(
                 "{}: no [transport.profile_rate] table; expected the configuration of a \

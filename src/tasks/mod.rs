@@ -1,7 +1,7 @@
-//! The tasks `rlpkg` trains on, in one place: each task id with how its environment is built and
-//! described, and how a training configuration is split into the learner's sections (`[run]`,
-//! `[ppo]`, `[policy]`, `[normalization]`, read by `rlpkg-agents`) and the task's own settings
-//! table (`[transport]` for `Transport-v0`; the classic-control tasks take none).
+//! How a training configuration is split into the learner's sections (`[run]`, `[ppo]`,
+//! `[policy]`, `[normalization]`, read by `rlpkg-agents`) and the task's own settings table
+//! (`[transport]` for `Transport-v0`; the classic-control tasks take none), which the task
+//! registry ([`rlpkg_env::tasks`], shared with the Python package) turns into a [`Task`].
 
 use std::path::Path;
 
@@ -11,121 +11,14 @@ use rlpkg_agents::config::{
 };
 use rlpkg_agents::runners::run_config_path;
 use rlpkg_agents::{AgentError, TrainConfig, Trainer};
-use rlpkg_env::{transport, Transport, TransportConfig};
-use rlpkg_vec_env::{cartpole, pendulum, CartPole, EnvError, EnvSpec, Pendulum, VecEnv};
+use rlpkg_vec_env::EnvSpec;
 use serde::Deserialize;
 
 use crate::error::{agent_error, input_error};
 use crate::overrides::{self, Override};
 
-/// Every task id, in the order messages list them.
-pub const IDS: [&str; 3] = [cartpole::ID, pendulum::ID, transport::ID];
-
-/// The settings table `Transport-v0` takes.
-const TRANSPORT_TABLE: &str = "transport";
-
-/// A task with its settings.
-#[derive(Debug, Clone)]
-pub enum Task {
-    /// Gymnasium's `CartPole-v1`.
-    CartPole,
-    /// Gymnasium's `Pendulum-v1`.
-    Pendulum,
-    /// `Transport-v0` with its `[transport]` table.
-    Transport {
-        /// The table.
-        config: Box<TransportConfig>,
-        /// The file it came from (named in messages).
-        source: String,
-    },
-}
-
-impl Task {
-    /// The task `id` when it takes no settings (an exported policy names only its task's id).
-    pub fn by_id(id: &str) -> Result<Self, EnvError> {
-        match id {
-            cartpole::ID => Ok(Task::CartPole),
-            pendulum::ID => Ok(Task::Pendulum),
-            transport::ID => Err(EnvError::NeedsSettings {
-                id: id.to_string(),
-                table: TRANSPORT_TABLE.to_string(),
-            }),
-            other => Err(EnvError::UnknownId {
-                id: other.to_string(),
-                known: IDS.iter().map(|id| id.to_string()).collect(),
-            }),
-        }
-    }
-
-    /// The tasks that take no settings.
-    pub fn without_settings() -> [Task; 2] {
-        [Task::CartPole, Task::Pendulum]
-    }
-
-    /// The task `run.env` names, with its settings table (`None` when the file has none) from
-    /// the configuration at `path`.
-    fn from_config(id: &str, table: Option<&toml::Table>, path: &Path) -> Result<Self, AgentError> {
-        let fail = |key: &str, value: String, expected: String| {
-            Err(AgentError::ConfigValue {
-                path: path.into(),
-                key: key.into(),
-                value,
-                expected,
-            })
-        };
-        match (id, table) {
-            (transport::ID, Some(table)) => {
-                let source = path.display().to_string();
-                let config = TransportConfig::from_table(table, &source)?;
-                Ok(Task::Transport {
-                    config: Box::new(config),
-                    source,
-                })
-            }
-            (transport::ID, None) => fail(
-                TRANSPORT_TABLE,
-                "missing".into(),
-                format!("a [{TRANSPORT_TABLE}] table for run.env = {id:?}"),
-            ),
-            (cartpole::ID | pendulum::ID, Some(_)) => fail(
-                TRANSPORT_TABLE,
-                "a table".into(),
-                format!("no [{TRANSPORT_TABLE}] table for run.env = {id:?}"),
-            ),
-            (cartpole::ID, None) => Ok(Task::CartPole),
-            (pendulum::ID, None) => Ok(Task::Pendulum),
-            (other, _) => fail(
-                "run.env",
-                format!("{other:?}"),
-                format!("one of {}", IDS.join(", ")),
-            ),
-        }
-    }
-
-    /// The spec of the task's environment, without building it (the transport scene is loaded
-    /// for its number of cups; nothing is simulated).
-    pub fn spec(&self) -> Result<EnvSpec, EnvError> {
-        match self {
-            Task::CartPole => Ok(CartPole::new(1).spec().clone()),
-            Task::Pendulum => Ok(Pendulum::new(1).spec().clone()),
-            Task::Transport { config, source } => transport::spec_of(config, source),
-        }
-    }
-
-    /// `num_envs` copies of the task's environment.
-    pub fn build(&self, num_envs: usize) -> Result<Box<dyn VecEnv>, EnvError> {
-        if num_envs == 0 {
-            return Err(EnvError::NoEnvs(num_envs));
-        }
-        Ok(match self {
-            Task::CartPole => Box::new(CartPole::new(num_envs)),
-            Task::Pendulum => Box::new(Pendulum::new(num_envs)),
-            Task::Transport { config, source } => {
-                Box::new(Transport::new((**config).clone(), num_envs, source)?)
-            }
-        })
-    }
-}
+pub use rlpkg_env::tasks::Task;
+use rlpkg_env::tasks::TaskError;
 
 /// A training configuration file as written: the learner's sections beside the task's table
 /// (the field order is the order messages list the sections in).
@@ -201,7 +94,22 @@ impl Training {
             normalization: file.normalization,
             source: path.display().to_string(),
         };
-        let task = Task::from_config(&config.run.env, file.transport.as_ref(), path)?;
+        let task = Task::from_settings(&config.run.env, "run.env", file.transport.as_ref(), path)
+            .map_err(|e| match e {
+            // The key's own error, as the learner's sections report theirs.
+            TaskError::Settings {
+                key,
+                value,
+                expected,
+                ..
+            } => AgentError::ConfigValue {
+                path: path.into(),
+                key,
+                value,
+                expected,
+            },
+            TaskError::Env(e) => AgentError::from(e),
+        })?;
         config.validate(path)?;
         let spec = task.spec()?;
         config.check_memory_for(&spec, path)?;

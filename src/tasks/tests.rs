@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use rlpkg_agents::runners::TrainedPolicy;
+use rlpkg_env::tasks::IDS;
 
 use super::*;
 

@@ -11,6 +11,7 @@
 #![warn(missing_docs)]
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Deserializer};
 
@@ -63,6 +64,31 @@ where
 {
     BTreeMap::<String, Exact<T, N>>::deserialize(deserializer)
         .map(|table| table.into_iter().map(|(k, v)| (k, v.0)).collect())
+}
+
+/// Where a relative path named by the file `file` is found: as given when it is absolute or
+/// exists from the working folder, else from the file's folder or the first of its parents where
+/// it exists (a configuration in the repository's `configs/train/` names paths relative to the
+/// repository), else as given (so that the error names the path the user wrote).
+pub fn find_relative(path: &Path, file: &Path) -> PathBuf {
+    if path.is_absolute() || path.exists() {
+        return path.to_path_buf();
+    }
+    let Some(folder) = file.parent().and_then(|f| {
+        let f = if f.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            f
+        };
+        f.canonicalize().ok()
+    }) else {
+        return path.to_path_buf();
+    };
+    folder
+        .ancestors()
+        .map(|dir| dir.join(path))
+        .find(|candidate| candidate.exists())
+        .unwrap_or_else(|| path.to_path_buf())
 }
 
 /// The 1-based line of a parse error of `text` and its message, which names the key when the
@@ -123,6 +149,29 @@ fn key_before(text: &str, at: usize) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_relative_path_is_found_from_the_working_folder_then_the_files_folder_upwards() {
+        let root = std::env::temp_dir().join(format!("rlpkg-find-relative-{}", std::process::id()));
+        let configs = root.join("configs/train");
+        std::fs::create_dir_all(&configs).unwrap();
+        std::fs::create_dir_all(root.join("data/x")).unwrap();
+        let file = configs.join("job.toml");
+        std::fs::write(&file, "").unwrap();
+        let found = find_relative(Path::new("data/x"), &file);
+        assert_eq!(found, root.canonicalize().unwrap().join("data/x"));
+        // Not found anywhere: as written.
+        assert_eq!(
+            find_relative(Path::new("data/none"), &file),
+            PathBuf::from("data/none")
+        );
+        // Found from the working folder first (this crate's own manifest).
+        assert_eq!(
+            find_relative(Path::new("Cargo.toml"), &file),
+            PathBuf::from("Cargo.toml")
+        );
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]

@@ -316,7 +316,11 @@ fn check_posterior_scene(
             "a {SUMMARY_FILE} of `rlpkg posterior` (not JSON: {e})"
         ))
     })?;
-    let calibration = value["config"].as_str().map(PathBuf::from).ok_or_else(|| {
+    // Named relative to the repository, found from the summary's folder upwards as well.
+    let calibration = value["config"]
+        .as_str()
+        .map(|c| rlpkg_toml_input::find_relative(Path::new(c), summary));
+    let calibration = calibration.ok_or_else(|| {
         fail(format!(
             "a {SUMMARY_FILE} naming its calibration config (`config`), as `rlpkg posterior` \
              writes"
@@ -346,13 +350,18 @@ fn check_posterior_scene(
         .and_then(|v| v.as_integer())
         .map(|p| p.clamp(0, 8) as usize);
     let dt = sim.and_then(|t| t.get("dt")).and_then(|v| v.as_float());
-    let calibrated =
-        rlpkg_replay::load_scene(preset, Some(between.unwrap_or(1)), dt).map_err(|e| {
-            fail(format!(
-                "a calibration config whose scene loads ({}: [sim] preset {preset:?}: {e})",
-                calibration.display()
-            ))
-        })?;
+    let preset_path = rlpkg_toml_input::find_relative(Path::new(preset), &calibration);
+    let calibrated = rlpkg_replay::load_scene(
+        &preset_path.to_string_lossy(),
+        Some(between.unwrap_or(1)),
+        dt,
+    )
+    .map_err(|e| {
+        fail(format!(
+            "a calibration config whose scene loads ({}: [sim] preset {preset:?}: {e})",
+            calibration.display()
+        ))
+    })?;
     let scene = load_scene(config, source)?;
     // The draws are film and contact parameters of that grid at that step: the same values on
     // another grid or integrator are another material, and may not even be stable there.
