@@ -319,6 +319,10 @@ particles = 8
 moves = 1
 seed = 4
 
+[smc.mode_search]
+population = 4
+generations = 3
+
 [loss]
 object = 1.0
 package = 1.0
@@ -362,6 +366,7 @@ fn samples_a_posterior_on_the_simulator_and_resumes_it_exactly() {
     for file in [
         "objective.toml",
         "evaluations.csv",
+        "search.csv",
         "stages.csv",
         "samples.csv",
         "posterior.toml",
@@ -372,6 +377,12 @@ fn samples_a_posterior_on_the_simulator_and_resumes_it_exactly() {
     ] {
         assert!(out_dir.join(file).is_file(), "{file} missing");
     }
+    let search = std::fs::read_to_string(out_dir.join("search.csv")).unwrap();
+    assert!(
+        search.starts_with("generation,evaluations,best_log_likelihood")
+            && search.lines().count() > 1,
+        "{search}"
+    );
     let samples = std::fs::read_to_string(out_dir.join("samples.csv")).unwrap();
     assert_eq!(samples.lines().count(), 1 + 8, "{samples}");
     for line in samples.lines().skip(1) {

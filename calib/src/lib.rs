@@ -11,6 +11,7 @@
 //! * [`recovery`] — parameter recovery: calibrating synthetic recordings of known parameters back;
 //! * [`sampled_posterior`] — a calibration that returns the posterior (SMC on the simulator);
 //! * [`smc`] — adaptive tempered sequential Monte Carlo: a posterior evaluated by the simulator;
+//! * [`cmaes`] — CMA-ES with ask-and-tell: the search for the mode the sampler may start from;
 //! * [`mcmc`] — the affine-invariant ensemble sampler the posterior draws with;
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
 //! * [`config`] — `configs/calibrate/study.toml`;
@@ -19,6 +20,7 @@
 //! evaluation helpers live in `rlpkg-replay`, which this crate builds on.
 
 pub mod bo;
+pub mod cmaes;
 pub mod config;
 pub mod driver;
 pub mod evallog;

@@ -6,6 +6,8 @@
 //! * `evaluations.csv`: every simulated candidate (parameters, `objective` = its log-likelihood,
 //!   the loss, Chamfer, object and site errors), appended after each batch; a rerun into the
 //!   folder serves the logged batches again and continues exactly where it stopped;
+//! * `search.csv`: the mode search's generations (best and median log-likelihood, step size), a
+//!   header only when the config has no `mode_search`;
 //! * `stages.csv`: the tempering steps (inverse temperature, effective sample size, acceptance);
 //! * `samples.csv`: the posterior draws ([`crate::posterior::samples_csv`], SI values);
 //! * `posterior.toml`: per parameter the median, the 90 % credible interval, its share of the box
@@ -20,6 +22,7 @@ use serde::Serialize;
 
 use rlpkg_replay::{Likelihood, LikelihoodSettings, RolloutOutcome};
 
+use crate::cmaes::Generation;
 use crate::driver::{write_atomically, write_toml, CalibratedParams, FitSummary};
 use crate::evallog::{EvaluationLog, LogError, LoggedEvaluation};
 use crate::fisher::{fisher_information, FisherAnalysis};
@@ -32,9 +35,10 @@ use crate::space::ParamSpace;
 pub const POSTERIOR_METRICS: [&str; 4] = ["loss", "chamfer_m", "object_mse_m2", "site_mse_m2"];
 
 /// The files a sampled posterior writes into its output folder.
-pub const POSTERIOR_FILES: [&str; 7] = [
+pub const POSTERIOR_FILES: [&str; 8] = [
     crate::fingerprint::OBJECTIVE_FILE,
     "evaluations.csv",
+    "search.csv",
     "stages.csv",
     "samples.csv",
     "posterior.toml",
@@ -95,6 +99,8 @@ pub struct SampledPosterior {
     pub parameters: Vec<ParameterInterval>,
     /// Simulated candidates.
     pub evaluations: usize,
+    /// Generations of the mode search (0 without one).
+    pub search_generations: usize,
     /// Tempering steps.
     pub stages: usize,
     /// Log evidence `ln ∫ prior · L` (up to the likelihood's constant).
@@ -106,6 +112,9 @@ pub struct SampledPosterior {
     /// The draws (SI values), in the search order.
     #[serde(skip)]
     pub draws: Vec<Vec<f64>>,
+    /// The mode search's generations.
+    #[serde(skip)]
+    pub search_log: Vec<Generation>,
     /// The tempering steps.
     #[serde(skip)]
     pub stage_log: Vec<Stage>,
@@ -213,11 +222,13 @@ pub fn sample_posterior(
     let posterior = SampledPosterior {
         parameters,
         evaluations: result.evaluations,
+        search_generations: result.search.len(),
         stages: result.stages.len(),
         log_evidence: result.log_evidence,
         independent_residuals: [likelihood.package_count, likelihood.object_count],
         best_log_likelihood: result.log_likelihoods[best_index],
         draws,
+        search_log: result.search,
         stage_log: result.stages,
         best,
         fisher,
@@ -289,6 +300,15 @@ fn write_outputs(
     posterior: &SampledPosterior,
 ) -> Result<(), SampledPosteriorError> {
     let fail = |e: crate::driver::DriverError| SampledPosteriorError::Write(e.to_string());
+    let mut search =
+        String::from("generation,evaluations,best_log_likelihood,median_log_likelihood,step\n");
+    for (k, g) in posterior.search_log.iter().enumerate() {
+        search.push_str(&format!(
+            "{k},{},{},{},{}\n",
+            g.evaluations, g.best_log_likelihood, g.median_log_likelihood, g.step
+        ));
+    }
+    write_atomically(&out_dir.join("search.csv"), search.as_bytes()).map_err(fail)?;
     let mut stages =
         String::from("stage,beta,ess,acceptance,scale,evaluations,best_log_likelihood\n");
     for (k, s) in posterior.stage_log.iter().enumerate() {

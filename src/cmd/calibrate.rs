@@ -231,6 +231,16 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// "CMA-ES mode search (P x at most G generations), then " when the sampler has one.
+pub(crate) fn mode_search_text(smc: &rlpkg_calib::smc::SmcSettings) -> String {
+    smc.mode_search.map_or(String::new(), |m| {
+        format!(
+            "CMA-ES mode search ({} x at most {} generations), then ",
+            m.population, m.generations
+        )
+    })
+}
+
 /// `rlpkg calibrate` of a config with `[smc]`: samples the posterior on the simulator
 /// ([`rlpkg_calib::sampled_posterior`]), resuming the folder's log, and writes the draws, their
 /// summary and the best draw's scene.
@@ -275,13 +285,14 @@ fn run_posterior(
     write_record(out_dir, &record)?;
     println!(
         "sampling the posterior of {} parameter(s) on {} trajectory(ies) [{}], grid {}x{}, dt {:.3e} s, \
-         {} particles x {} moves; output in {}",
+         {}{} particles x {} moves; output in {}",
         config.params.len(),
         ids.len(),
         ids.join(","),
         scene.package.grid[0],
         scene.package.grid[1],
         scene.dt(),
+        mode_search_text(&smc),
         smc.particles,
         smc.moves,
         out_dir.display()
@@ -362,14 +373,16 @@ fn run_posterior(
     print!("{}", posterior_table(&posterior));
     print!("{}", rlpkg_calib::fisher::fisher_table(&posterior.fisher));
     println!(
-        "{} candidates simulated in {} stages, {wall:.1} s ({:.1} per s); best log-likelihood {:.2}",
+        "{} candidates simulated in {} search generations and {} stages, {wall:.1} s ({:.1} per s); \
+         best log-likelihood {:.2}",
         posterior.evaluations,
+        posterior.search_generations,
         posterior.stages,
         posterior.evaluations as f64 / wall.max(1e-9),
         posterior.best_log_likelihood
     );
     println!(
-        "wrote {}/{{objective.toml, evaluations.csv, stages.csv, samples.csv, posterior.toml, best.toml, fisher.toml, calibrated.toml, corner.png}}",
+        "wrote {}/{{objective.toml, evaluations.csv, search.csv, stages.csv, samples.csv, posterior.toml, best.toml, fisher.toml, calibrated.toml, corner.png}}",
         out_dir.display()
     );
     if let Some(path) = &args.write_params {

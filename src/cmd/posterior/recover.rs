@@ -204,9 +204,10 @@ fn run_sampled(
     let space = config.space();
     let draws = recovery::draw_truths(&space, truths, args.seed);
     println!(
-        "recovering {truths} truth(s) of {} parameter(s) with a sampled posterior ({} particles x {} moves) \
+        "recovering {truths} truth(s) of {} parameter(s) with a sampled posterior ({}{} particles x {} moves) \
          on {} synthetic trajectory(ies) [{}], marker noise {:.3} mm per axis; output in {}",
         space.dim(),
+        crate::cmd::calibrate::mode_search_text(&smc),
         smc.particles,
         smc.moves,
         ids.len(),
@@ -239,8 +240,11 @@ fn run_sampled(
             other => anyhow::Error::new(other),
         })?;
         println!(
-            "truth {k}: truth loss {:.4e}, best loss {:.4e}, {} candidates, {:.0} s",
+            "truth {k}: truth loss {:.4e} ({:.4e} with every value x (1 + {:.0e})), best loss {:.4e}, \
+             {} candidates, {:.0} s",
             recovered.truth_loss,
+            recovered.nudged_truth_loss,
+            rlpkg_calib::recovery::NUDGE,
             recovered.best_loss,
             recovered.evaluations,
             truth_started.elapsed().as_secs_f64()
