@@ -64,6 +64,33 @@ fn shipped_config(dir: &Path, name: &str, from: &str, to: &str) {
     std::fs::write(dir.join(name), text.replace(from, to)).unwrap();
 }
 
+/// `dir/calibrate.toml`: one batch of two on the first 0.05 s of HHHHH in the scene `preset`, into
+/// `out`.
+fn tiny_calibration(dir: &Path, preset: &str) {
+    let data = repo().join("data/deformable-sim-real");
+    std::fs::write(
+        dir.join("calibrate.toml"),
+        format!(
+            "data = \"{}\"\ntrajectories = [\"HHHHH\"]\nout_dir = \"out\"\n\n\
+             [sim]\npreset = \"{preset}\"\nbetween = 0\nmax_seconds = 0.05\n\n\
+             [optimiser]\niterations = 1\nbatch_size = 2\ninitial_points = 1\nseed = 5\n\n\
+             [[param]]\nname = \"k_tri_e\"\nlower = 1.0e4\nupper = 1.0e6\nlog = true\n",
+            data.display()
+        ),
+    )
+    .unwrap();
+}
+
+/// Writes `<dir>/<folder>/.lock` naming this test's process: a running process holds the folder.
+fn held_by_this_test(dir: &Path, folder: &str) {
+    std::fs::create_dir_all(dir.join(folder)).unwrap();
+    std::fs::write(
+        dir.join(folder).join(".lock"),
+        format!("{}\n", std::process::id()),
+    )
+    .unwrap();
+}
+
 /// `rlpkg data import-motive` of the fixture take into `dir/out` with `dir/motive.toml`.
 fn import_args() -> Vec<String> {
     let take = repo().join("mocap/tests/fixtures/a30_m0.5_high_excerpt.csv.gz");
@@ -683,18 +710,7 @@ fn cases() -> Vec<Case> {
         Case {
             name: "calibration log row outside the bounds",
             setup: |dir| {
-                let data = repo().join("data/deformable-sim-real");
-                std::fs::write(
-                    dir.join("calibrate.toml"),
-                    format!(
-                        "data = \"{}\"\ntrajectories = [\"HHHHH\"]\nout_dir = \"out\"\n\n\
-                         [sim]\npreset = \"reference\"\nbetween = 0\nmax_seconds = 0.05\n\n\
-                         [optimiser]\niterations = 1\nbatch_size = 2\ninitial_points = 1\nseed = 5\n\n\
-                         [[param]]\nname = \"k_tri_e\"\nlower = 1.0e4\nupper = 1.0e6\nlog = true\n",
-                        data.display()
-                    ),
-                )
-                .unwrap();
+                tiny_calibration(dir, "reference");
                 std::fs::create_dir(dir.join("out")).unwrap();
                 std::fs::write(
                     dir.join("out/evaluations.csv"),
@@ -710,6 +726,34 @@ fn cases() -> Vec<Case> {
                 "`k_tri_e` = 50000000",
                 "outside its bounds",
             ],
+        },
+        Case {
+            name: "resuming a run another process is training",
+            setup: |dir| {
+                let run = run_copy(dir);
+                held_by_this_test(dir, &run);
+                args(&["train", "--resume", &run, "--quiet"])
+            },
+            expected: &["run: in use by process", "run/.lock", "wait until"],
+        },
+        Case {
+            name: "a new run into a folder another process holds",
+            setup: |dir| {
+                write_tiny(dir);
+                held_by_this_test(dir, "runs/tiny");
+                args(&["train", "tiny.toml", "--quiet"])
+            },
+            expected: &["runs/tiny: in use by process", "runs/tiny/.lock"],
+        },
+        Case {
+            name: "calibration into a folder another process holds",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                held_by_this_test(dir, "out");
+                std::fs::write(dir.join("out/.evaluations.csv.Ab12Cd"), "being written").unwrap();
+                args(&["calibrate", "calibrate.toml", "--fresh"])
+            },
+            expected: &["out: in use by process", "out/.lock"],
         },
     ]
 }
