@@ -755,6 +755,124 @@ fn cases() -> Vec<Case> {
             },
             expected: &["out: in use by process", "out/.lock"],
         },
+        Case {
+            name: "export over a checkpoint of the run",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&[
+                    "export",
+                    &run,
+                    "--out",
+                    "run/checkpoints/update_000004/model.bpk",
+                ])
+            },
+            expected: &[
+                "--out run/checkpoints/update_000004/model.bpk",
+                "a file of the run's checkpoints",
+                "would destroy the run",
+            ],
+        },
+        Case {
+            name: "export over the run's config.toml",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::create_dir(dir.join("elsewhere")).unwrap();
+                args(&["export", &run, "--out", "elsewhere/../run/config.toml"])
+            },
+            expected: &[
+                "--out elsewhere/../run/config.toml",
+                "the run's configuration",
+            ],
+        },
+        Case {
+            name: "calibration writing its scene over its own config",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&[
+                    "calibrate",
+                    "calibrate.toml",
+                    "--write-params",
+                    "calibrate.toml",
+                ])
+            },
+            expected: &[
+                "--write-params calibrate.toml",
+                "the calibration config",
+                "which this command reads",
+            ],
+        },
+        Case {
+            name: "calibration writing its scene over its preset scene",
+            setup: |dir| {
+                std::fs::copy(
+                    repo().join("configs/scenes/study.toml"),
+                    dir.join("scene.toml"),
+                )
+                .unwrap();
+                tiny_calibration(dir, "scene.toml");
+                std::fs::create_dir(dir.join("sub")).unwrap();
+                args(&[
+                    "calibrate",
+                    "calibrate.toml",
+                    "--write-params",
+                    "sub/../scene.toml",
+                ])
+            },
+            expected: &["--write-params sub/../scene.toml", "`sim.preset`"],
+        },
+        Case {
+            name: "calibration writing its scene into a missing folder",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&[
+                    "calibrate",
+                    "calibrate.toml",
+                    "--write-params",
+                    "nodir/x.toml",
+                ])
+            },
+            expected: &[
+                "--write-params nodir/x.toml",
+                "the folder nodir does not exist",
+            ],
+        },
+        Case {
+            name: "calibration writing its scene to a device",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&["calibrate", "calibrate.toml", "--write-params", "/dev/null"])
+            },
+            expected: &["--write-params /dev/null", "is a character device"],
+        },
+        Case {
+            name: "seal fit into a file",
+            setup: |dir| {
+                std::fs::write(
+                    dir.join("seal.toml"),
+                    format!(
+                        "dataset = {:?}\nscene = {:?}\nout = \"out\"\nmax_seconds = 0.1\n\n\
+                         [grid]\nvacuum_kpa = {{ min = 20.0, max = 30.0, steps = 2 }}\n",
+                        repo()
+                            .join("data/deformable-sim-real")
+                            .display()
+                            .to_string(),
+                        repo()
+                            .join("configs/scenes/study.toml")
+                            .display()
+                            .to_string(),
+                    ),
+                )
+                .unwrap();
+                std::fs::write(dir.join("out"), "").unwrap();
+                args(&["seal", "fit", "seal.toml"])
+            },
+            expected: &[
+                "seal.toml",
+                "key `out` = out",
+                "is a file",
+                "candidates.csv",
+            ],
+        },
     ]
 }
 

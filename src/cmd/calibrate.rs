@@ -23,7 +23,7 @@ use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
 
 use crate::error::input_error;
-use crate::files::lock_folder;
+use crate::files::{check_not_input, check_output, lock_folder, Input};
 
 /// Progress-bar ticks per batch.
 const TICKS_PER_BATCH: u64 = 1000;
@@ -64,6 +64,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             args.config.display()
         )));
     }
+    check_write_params(&args, &config)?;
     let (ids, trajectories) = training_trajectories(&config)?;
     let scene = config.scene(&args.config).map_err(input_error)?;
     check_bounds_in_scene(&config, &scene, &args.config)?;
@@ -438,6 +439,35 @@ fn remove_empty_start(out_dir: &Path) {
     }
     let _ = std::fs::remove_file(&log);
     let _ = std::fs::remove_file(out_dir.join(fingerprint::OBJECTIVE_FILE));
+}
+
+/// `--write-params` must be a file that can be written (checked before any simulation) and none
+/// of the calibration's inputs: its config, its scene, its dataset, or a file of its output folder
+/// that the calibration writes and reads back (`calibrated.toml` is the same scene).
+fn check_write_params(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow::Result<()> {
+    use rlpkg_calib::sampled_posterior::POSTERIOR_FILES;
+    const OPTION: &str = "--write-params";
+    let Some(path) = &args.write_params else {
+        return Ok(());
+    };
+    check_output(OPTION, path)?;
+    let preset = Path::new(&config.sim.preset);
+    let mut inputs = vec![Input::File(&args.config, "the calibration config")];
+    if !matches!(config.sim.preset.as_str(), "reference" | "physical") {
+        inputs.push(Input::File(preset, "the config's scene (`sim.preset`)"));
+    }
+    inputs.push(Input::Folder(&config.data, "the config's dataset (`data`)"));
+    let mut names: Vec<&str> = driver::OUTPUT_FILES.to_vec();
+    names.extend(POSTERIOR_FILES);
+    names.push("corner.png");
+    names.retain(|name| *name != "calibrated.toml");
+    let outputs: Vec<PathBuf> = names.iter().map(|name| config.out_dir.join(name)).collect();
+    inputs.extend(
+        outputs
+            .iter()
+            .map(|file| Input::File(file, "a file of the calibration's output folder")),
+    );
+    check_not_input(OPTION, path, &inputs)
 }
 
 /// The evaluation log and the output files are the user's (exit 2: malformed log, folder that is
