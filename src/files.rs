@@ -1,10 +1,14 @@
 //! Output files of the commands, written whole or not at all through [`rlpkg_files`]: a reader
 //! (or a crash) never sees a half-written CSV or JSON. The one place the commands write their
-//! result files through.
+//! result files through, check their output paths before they start working, and lock the
+//! folders they write ([`lock_folder`]).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use rlpkg_files::lock::FolderLock;
+
+use crate::error::input_error;
 
 /// Writes `bytes` to `path` atomically (see [`rlpkg_files::write_atomic`]); the error names the
 /// file.
@@ -13,9 +17,96 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// Locks `folder` for this command ([`rlpkg_files::lock`]), creating it first when `create` (the
+/// folders made are removed again on release when left empty). A folder another running command
+/// holds, or one the file system refuses, is the user's (exit 2). Taking over a stale lock is
+/// said on standard error.
+pub fn lock_folder(folder: &Path, create: bool) -> anyhow::Result<FolderLock> {
+    let lock = if create {
+        FolderLock::create(folder)
+    } else {
+        FolderLock::acquire(folder)
+    }
+    .map_err(input_error)?;
+    if let Some(stale) = lock.taken_over() {
+        eprintln!(
+            "took over the stale lock {} of {stale}",
+            lock.file().display()
+        );
+    }
+    Ok(lock)
+}
+
+/// Checks, before any work, that the output file `path` (given as `option`, e.g.
+/// `--write-params`) can be written: it names a file whose folder exists, and nothing but a
+/// regular file (or nothing yet) is there. Exit 2 otherwise, nothing written.
+pub fn check_output(option: &str, path: &Path) -> anyhow::Result<()> {
+    rlpkg_files::check_destination(path).map_err(|err| input_error(format!("{option} {err}")))
+}
+
+/// The file that writing `path` replaces, for comparing with other paths: its canonical path when
+/// it exists (symbolic links followed, as a write follows them), else its folder's canonical path
+/// joined with its file name; `None` when not even its folder exists.
+pub fn resolved(path: &Path) -> Option<PathBuf> {
+    if let Ok(path) = path.canonicalize() {
+        return Some(path);
+    }
+    let folder = match path.parent() {
+        Some(folder) if !folder.as_os_str().is_empty() => folder,
+        _ => Path::new("."),
+    };
+    Some(folder.canonicalize().ok()?.join(path.file_name()?))
+}
+
+/// An input of a command, which none of its outputs may be.
+pub enum Input<'a> {
+    /// A file, and what it is to the command (e.g. "the calibration config"); also one the
+    /// command is yet to write and read back (a log of its output folder).
+    File(&'a Path, &'a str),
+    /// Every existing file inside a folder, and what the folder is (e.g. "the dataset").
+    Folder(&'a Path, &'a str),
+}
+
+/// Refuses the output file `path` (given as `option`) when it is one of `inputs` once both are
+/// canonicalised (see [`resolved`]): writing it would replace what the command reads.
+pub fn check_not_input(option: &str, path: &Path, inputs: &[Input]) -> anyhow::Result<()> {
+    let Some(target) = resolved(path) else {
+        return Ok(()); // its folder does not exist: `check_output` refuses it
+    };
+    for input in inputs {
+        match *input {
+            Input::File(file, what) => {
+                if resolved(file).is_some_and(|file| file == target) {
+                    return Err(input_error(format!(
+                        "{option} {}: is {}, {what}, which this command reads; expected \
+                         another file",
+                        path.display(),
+                        file.display()
+                    )));
+                }
+            }
+            Input::Folder(folder, what) => {
+                let inside = folder
+                    .canonicalize()
+                    .is_ok_and(|folder| target.starts_with(folder));
+                if inside && target.exists() {
+                    return Err(input_error(format!(
+                        "{option} {}: is a file of {}, {what}, which this command reads; \
+                         expected a file outside it",
+                        path.display(),
+                        folder.display()
+                    )));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::exit_code;
 
     #[test]
     fn the_error_names_the_file() {
@@ -24,5 +115,58 @@ mod tests {
         let err = write_atomic(&missing, b"x").unwrap_err();
         assert!(format!("{err}").contains("no-such-folder"), "{err}");
         assert!(!missing.exists());
+    }
+
+    #[test]
+    fn outputs_are_checked_before_work() {
+        let dir = tempfile::tempdir().unwrap();
+        check_output("--write-params", &dir.path().join("x.toml")).unwrap();
+        for (path, words) in [
+            (dir.path().join("nodir/x.toml"), "nodir does not exist"),
+            (
+                PathBuf::from("/dev/null"),
+                "/dev/null is a character device",
+            ),
+        ] {
+            let err = check_output("--write-params", &path).unwrap_err();
+            assert_eq!(exit_code(&err), 2);
+            let message = err.to_string();
+            assert!(message.starts_with("--write-params "), "{message}");
+            assert!(message.contains(words), "{message}");
+        }
+    }
+
+    #[test]
+    fn an_output_that_is_an_input_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let config = dir.path().join("c.toml");
+        std::fs::write(&config, "x").unwrap();
+        let data = dir.path().join("data");
+        std::fs::create_dir_all(data.join("HHHHH")).unwrap();
+        std::fs::write(data.join("HHHHH/meta.toml"), "x").unwrap();
+        let inputs = [
+            Input::File(&config, "the calibration config"),
+            Input::Folder(&data, "the dataset"),
+        ];
+        // The same file reached another way, through `..` and through a symbolic link.
+        let link = dir.path().join("link.toml");
+        std::os::unix::fs::symlink(&config, &link).unwrap();
+        for path in [
+            config.clone(),
+            data.join("HHHHH/../../c.toml"),
+            link.clone(),
+        ] {
+            let err = check_not_input("--write-params", &path, &inputs).unwrap_err();
+            assert_eq!(exit_code(&err), 2);
+            assert!(err.to_string().contains("the calibration config"), "{err}");
+        }
+        let err =
+            check_not_input("--write-params", &data.join("HHHHH/meta.toml"), &inputs).unwrap_err();
+        assert!(err.to_string().contains("the dataset"), "{err}");
+        // New files are not inputs, also inside the dataset's folder.
+        for path in [dir.path().join("calibrated.toml"), data.join("new.toml")] {
+            check_not_input("--write-params", &path, &inputs).unwrap();
+        }
+        assert_eq!(resolved(&dir.path().join("nodir/x.toml")), None);
     }
 }

@@ -4,7 +4,9 @@
 //! stop: it looks at [`requested`] between two writes, returns [`Interrupted`], and its
 //! temporary files are removed as their owners are dropped, so it leaves no half-written output.
 //! A second signal ends the process at once; the temporary files it leaves are never mistaken for
-//! output, and the next run of the command into the same folder removes them.
+//! output, and the next run of the command into the same folder removes them. Ending at once still
+//! removes the folder locks the command holds ([`rlpkg_files::lock::release_all`]), which their
+//! destructors would otherwise have removed.
 
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
@@ -24,6 +26,7 @@ pub struct Interrupted;
 pub fn install() {
     let _ = ctrlc::set_handler(|| {
         if COOPERATING.load(Ordering::SeqCst) == 0 || REQUESTED.swap(true, Ordering::SeqCst) {
+            rlpkg_files::lock::release_all();
             std::process::exit(EXIT_CODE);
         }
         eprintln!("\nstopping at the next safe point (send the signal again to stop at once)");

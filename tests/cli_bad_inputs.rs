@@ -64,6 +64,33 @@ fn shipped_config(dir: &Path, name: &str, from: &str, to: &str) {
     std::fs::write(dir.join(name), text.replace(from, to)).unwrap();
 }
 
+/// `dir/calibrate.toml`: one batch of two on the first 0.05 s of HHHHH in the scene `preset`, into
+/// `out`.
+fn tiny_calibration(dir: &Path, preset: &str) {
+    let data = repo().join("data/deformable-sim-real");
+    std::fs::write(
+        dir.join("calibrate.toml"),
+        format!(
+            "data = \"{}\"\ntrajectories = [\"HHHHH\"]\nout_dir = \"out\"\n\n\
+             [sim]\npreset = \"{preset}\"\nbetween = 0\nmax_seconds = 0.05\n\n\
+             [optimiser]\niterations = 1\nbatch_size = 2\ninitial_points = 1\nseed = 5\n\n\
+             [[param]]\nname = \"k_tri_e\"\nlower = 1.0e4\nupper = 1.0e6\nlog = true\n",
+            data.display()
+        ),
+    )
+    .unwrap();
+}
+
+/// Writes `<dir>/<folder>/.lock` naming this test's process: a running process holds the folder.
+fn held_by_this_test(dir: &Path, folder: &str) {
+    std::fs::create_dir_all(dir.join(folder)).unwrap();
+    std::fs::write(
+        dir.join(folder).join(".lock"),
+        format!("{}\n", std::process::id()),
+    )
+    .unwrap();
+}
+
 /// `rlpkg data import-motive` of the fixture take into `dir/out` with `dir/motive.toml`.
 fn import_args() -> Vec<String> {
     let take = repo().join("mocap/tests/fixtures/a30_m0.5_high_excerpt.csv.gz");
@@ -683,18 +710,7 @@ fn cases() -> Vec<Case> {
         Case {
             name: "calibration log row outside the bounds",
             setup: |dir| {
-                let data = repo().join("data/deformable-sim-real");
-                std::fs::write(
-                    dir.join("calibrate.toml"),
-                    format!(
-                        "data = \"{}\"\ntrajectories = [\"HHHHH\"]\nout_dir = \"out\"\n\n\
-                         [sim]\npreset = \"reference\"\nbetween = 0\nmax_seconds = 0.05\n\n\
-                         [optimiser]\niterations = 1\nbatch_size = 2\ninitial_points = 1\nseed = 5\n\n\
-                         [[param]]\nname = \"k_tri_e\"\nlower = 1.0e4\nupper = 1.0e6\nlog = true\n",
-                        data.display()
-                    ),
-                )
-                .unwrap();
+                tiny_calibration(dir, "reference");
                 std::fs::create_dir(dir.join("out")).unwrap();
                 std::fs::write(
                     dir.join("out/evaluations.csv"),
@@ -709,6 +725,152 @@ fn cases() -> Vec<Case> {
                 "line 2",
                 "`k_tri_e` = 50000000",
                 "outside its bounds",
+            ],
+        },
+        Case {
+            name: "resuming a run another process is training",
+            setup: |dir| {
+                let run = run_copy(dir);
+                held_by_this_test(dir, &run);
+                args(&["train", "--resume", &run, "--quiet"])
+            },
+            expected: &["run: in use by process", "run/.lock", "wait until"],
+        },
+        Case {
+            name: "a new run into a folder another process holds",
+            setup: |dir| {
+                write_tiny(dir);
+                held_by_this_test(dir, "runs/tiny");
+                args(&["train", "tiny.toml", "--quiet"])
+            },
+            expected: &["runs/tiny: in use by process", "runs/tiny/.lock"],
+        },
+        Case {
+            name: "calibration into a folder another process holds",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                held_by_this_test(dir, "out");
+                std::fs::write(dir.join("out/.evaluations.csv.Ab12Cd"), "being written").unwrap();
+                args(&["calibrate", "calibrate.toml", "--fresh"])
+            },
+            expected: &["out: in use by process", "out/.lock"],
+        },
+        Case {
+            name: "export over a checkpoint of the run",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&[
+                    "export",
+                    &run,
+                    "--out",
+                    "run/checkpoints/update_000004/model.bpk",
+                ])
+            },
+            expected: &[
+                "--out run/checkpoints/update_000004/model.bpk",
+                "a file of the run's checkpoints",
+                "would destroy the run",
+            ],
+        },
+        Case {
+            name: "export over the run's config.toml",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::create_dir(dir.join("elsewhere")).unwrap();
+                args(&["export", &run, "--out", "elsewhere/../run/config.toml"])
+            },
+            expected: &[
+                "--out elsewhere/../run/config.toml",
+                "the run's configuration",
+            ],
+        },
+        Case {
+            name: "calibration writing its scene over its own config",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&[
+                    "calibrate",
+                    "calibrate.toml",
+                    "--write-params",
+                    "calibrate.toml",
+                ])
+            },
+            expected: &[
+                "--write-params calibrate.toml",
+                "the calibration config",
+                "which this command reads",
+            ],
+        },
+        Case {
+            name: "calibration writing its scene over its preset scene",
+            setup: |dir| {
+                std::fs::copy(
+                    repo().join("configs/scenes/study.toml"),
+                    dir.join("scene.toml"),
+                )
+                .unwrap();
+                tiny_calibration(dir, "scene.toml");
+                std::fs::create_dir(dir.join("sub")).unwrap();
+                args(&[
+                    "calibrate",
+                    "calibrate.toml",
+                    "--write-params",
+                    "sub/../scene.toml",
+                ])
+            },
+            expected: &["--write-params sub/../scene.toml", "`sim.preset`"],
+        },
+        Case {
+            name: "calibration writing its scene into a missing folder",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&[
+                    "calibrate",
+                    "calibrate.toml",
+                    "--write-params",
+                    "nodir/x.toml",
+                ])
+            },
+            expected: &[
+                "--write-params nodir/x.toml",
+                "the folder nodir does not exist",
+            ],
+        },
+        Case {
+            name: "calibration writing its scene to a device",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&["calibrate", "calibrate.toml", "--write-params", "/dev/null"])
+            },
+            expected: &["--write-params /dev/null", "is a character device"],
+        },
+        Case {
+            name: "seal fit into a file",
+            setup: |dir| {
+                std::fs::write(
+                    dir.join("seal.toml"),
+                    format!(
+                        "dataset = {:?}\nscene = {:?}\nout = \"out\"\nmax_seconds = 0.1\n\n\
+                         [grid]\nvacuum_kpa = {{ min = 20.0, max = 30.0, steps = 2 }}\n",
+                        repo()
+                            .join("data/deformable-sim-real")
+                            .display()
+                            .to_string(),
+                        repo()
+                            .join("configs/scenes/study.toml")
+                            .display()
+                            .to_string(),
+                    ),
+                )
+                .unwrap();
+                std::fs::write(dir.join("out"), "").unwrap();
+                args(&["seal", "fit", "seal.toml"])
+            },
+            expected: &[
+                "seal.toml",
+                "key `out` = out",
+                "is a file",
+                "candidates.csv",
             ],
         },
     ]

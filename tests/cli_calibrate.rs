@@ -490,3 +490,55 @@ fn a_full_or_closed_stdout_neither_panics_nor_loses_the_posterior() {
         .unwrap();
     assert_eq!(help.status.code(), Some(2), "{}", text(&help.stderr));
 }
+
+#[test]
+fn a_calibration_folder_in_use_is_refused_and_a_stale_lock_taken_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 30, "train");
+    let preset = quick_preset(dir.path());
+    let cfg = config(dir.path(), &data, &preset, "");
+    let out_dir = dir.path().join("out");
+    let lock = out_dir.join(".lock");
+    std::fs::create_dir(&out_dir).unwrap();
+    // This test's own process holds the folder; a second command must leave it alone, `--fresh`
+    // and leftovers included.
+    let pid = std::process::id();
+    std::fs::write(&lock, format!("{pid}\n")).unwrap();
+    let writing = out_dir.join(".evaluations.csv.Ab12Cd");
+    std::fs::write(&writing, "being written").unwrap();
+    for fresh in [false, true] {
+        let mut args = vec!["calibrate", cfg.to_str().unwrap()];
+        if fresh {
+            args.push("--fresh");
+        }
+        let refused = rlpkg(&args);
+        let stderr = text(&refused.stderr);
+        assert_eq!(refused.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.contains(&format!("{}: in use by process {pid}", out_dir.display())),
+            "{stderr}"
+        );
+        assert_eq!(std::fs::read_to_string(&lock).unwrap(), format!("{pid}\n"));
+        assert!(writing.exists());
+        assert_eq!(std::fs::read_dir(&out_dir).unwrap().count(), 2);
+    }
+
+    // A process that has ended holds nothing: its lock is taken over with a notice.
+    let mut child = Command::new("true").spawn().unwrap();
+    let ended = child.id();
+    child.wait().unwrap();
+    std::fs::write(&lock, format!("{ended}\n")).unwrap();
+    let out = rlpkg(&["calibrate", cfg.to_str().unwrap()]);
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "took over the stale lock {} of process {ended}, which no longer runs",
+            lock.display()
+        )),
+        "{stderr}"
+    );
+    assert!(!writing.exists(), "a leftover of a command that has ended");
+    assert!(!lock.exists(), "the lock outlived the command");
+    assert!(out_dir.join("evaluations.csv").exists());
+}

@@ -387,3 +387,215 @@ fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--recorded fast"));
 }
+
+/// Every file under `dir` with its bytes.
+fn files_under(dir: &Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
+    let mut files = std::collections::BTreeMap::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            files.extend(files_under(&path));
+        } else {
+            files.insert(path.clone(), std::fs::read(&path).unwrap());
+        }
+    }
+    files
+}
+
+/// The id of a process that has ended and been waited for: no process runs under it.
+fn ended_pid() -> u32 {
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let pid = child.id();
+    child.wait().unwrap();
+    pid
+}
+
+#[test]
+fn a_run_in_use_is_refused_and_a_stale_lock_is_taken_over() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("tiny.toml"), TINY_CARTPOLE).unwrap();
+    ok(&rlpkg(
+        &[
+            "train",
+            "tiny.toml",
+            "--stop-after",
+            "2",
+            "--quiet",
+            "--no-export",
+        ],
+        dir.path(),
+    ));
+    let run = dir.path().join("runs/tiny");
+    let lock = run.join(".lock");
+    assert!(!lock.exists(), "the lock outlived a finished command");
+
+    // Another command trains the run: a process that runs, its id in the lock file, and the
+    // temporary file of a write it has under way.
+    let mut holder = std::process::Command::new("sleep")
+        .arg("60")
+        .spawn()
+        .unwrap();
+    std::fs::write(&lock, format!("{}\n", holder.id())).unwrap();
+    let writing = run.join(".config.toml.Ab12Cd");
+    std::fs::write(&writing, "being written").unwrap();
+    let before = files_under(&run);
+    for args in [
+        &["train", "--resume", "runs/tiny", "--quiet"][..],
+        &["train", "tiny.toml", "--quiet"][..],
+    ] {
+        let refused = rlpkg(args, dir.path());
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert_eq!(refused.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains(&format!("runs/tiny: in use by process {}", holder.id()))
+                && stderr.contains("runs/tiny/.lock"),
+            "{args:?}: {stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{stderr}");
+        // Nothing of the holder's is touched: not its lock, not its temporary file.
+        assert_eq!(files_under(&run), before, "{args:?}");
+    }
+    holder.kill().unwrap();
+    holder.wait().unwrap();
+
+    // The holder has ended: its lock is stale, taken over with a notice, and its temporary file
+    // is now a leftover.
+    let resumed = rlpkg(
+        &["train", "--resume", "runs/tiny", "--quiet", "--no-export"],
+        dir.path(),
+    );
+    let stderr = String::from_utf8_lossy(&resumed.stderr);
+    ok(&resumed);
+    assert!(
+        stderr.contains(&format!(
+            "took over the stale lock runs/tiny/.lock of process {}, which no longer runs",
+            holder.id()
+        )),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("removed the leftover temporary"),
+        "{stderr}"
+    );
+    assert!(!writing.exists());
+    assert!(!lock.exists(), "the lock outlived a finished command");
+    assert_eq!(eval_json(dir.path(), "runs/tiny")["update"], 4);
+
+    // A lock left by a process that ended long ago, on a run that is not there yet: taken over,
+    // and removed at the end of the new run (also when the command fails).
+    let fresh = dir.path().join("runs/fresh");
+    std::fs::create_dir_all(&fresh).unwrap();
+    std::fs::write(fresh.join(".lock"), format!("{}\n", ended_pid())).unwrap();
+    let failed = rlpkg(
+        &[
+            "train",
+            "tiny.toml",
+            "--name",
+            "fresh",
+            "--set",
+            "ppo.gama=0.9",
+        ],
+        dir.path(),
+    );
+    assert_eq!(
+        failed.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&failed.stderr)
+    );
+    assert!(
+        fresh.join(".lock").exists(),
+        "a refused config touches no folder"
+    );
+    ok(&rlpkg(
+        &[
+            "train",
+            "tiny.toml",
+            "--name",
+            "fresh",
+            "--quiet",
+            "--no-export",
+        ],
+        dir.path(),
+    ));
+    assert!(!fresh.join(".lock").exists());
+    assert!(fresh.join("checkpoints/latest").exists());
+}
+
+/// Starts `rlpkg train` of a long CartPole run in `dir` and waits until it has checkpointed its
+/// first update (it then holds its lock and stops at a signal after an update).
+fn long_training(dir: &Path) -> std::process::Child {
+    std::fs::write(
+        dir.join("long.toml"),
+        TINY_CARTPOLE.replace("total_steps = 1024", "total_steps = 10240000"),
+    )
+    .unwrap();
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(["train", "long.toml", "--quiet", "--no-export"])
+        .current_dir(dir)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !dir.join("runs/long/checkpoints/latest").exists() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no checkpoint within 120 s"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(dir.join("runs/long/.lock").exists());
+    child
+}
+
+fn send(signal: &str, child: &std::process::Child) {
+    let sent = std::process::Command::new("kill")
+        .args([format!("-{signal}"), child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+}
+
+#[test]
+fn ctrl_c_removes_the_lock_also_when_it_ends_the_process_at_once() {
+    // One signal: training stops after the current update and the command returns.
+    let dir = tempfile::tempdir().unwrap();
+    let child = long_training(dir.path());
+    send("INT", &child);
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!dir.path().join("runs/long/.lock").exists());
+
+    // Two signals: the second ends the process at once, skipping every destructor.
+    let dir = tempfile::tempdir().unwrap();
+    let child = long_training(dir.path());
+    send("INT", &child);
+    send("INT", &child);
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130));
+    assert!(!dir.path().join("runs/long/.lock").exists());
+    // The next command finds the folder free (its --stop-after is refused only after the lock).
+    let resumed = rlpkg(
+        &[
+            "train",
+            "--resume",
+            "runs/long",
+            "--stop-after",
+            "1",
+            "--quiet",
+        ],
+        dir.path(),
+    );
+    let stderr = String::from_utf8_lossy(&resumed.stderr);
+    assert_eq!(resumed.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("is already at update") && !stderr.contains("lock"),
+        "{stderr}"
+    );
+}

@@ -11,8 +11,12 @@
 //! * a folder, a device node, a FIFO or a socket: refused with an error naming the path, because
 //!   renaming a regular file over it would silently swap a device or a pipe for a plain file.
 //!
+//! [`check_destination`] applies the same rules before a command starts its work, so that a
+//! destination that will be refused is refused at once, not after an hour of computation.
+//!
 //! An interrupted write can leave its temporary file behind; [`is_temporary_of`] recognises
-//! those names so a command can remove them when it starts again.
+//! those names so a command can remove them when it starts again. Only the command that writes a
+//! folder may do so: [`lock`] keeps a second command out of a folder while the first one runs.
 
 #![warn(missing_docs)]
 
@@ -20,6 +24,8 @@ use std::fs::FileType;
 use std::io::{self, Write};
 use std::os::unix::fs::FileTypeExt;
 use std::path::{Path, PathBuf};
+
+pub mod lock;
 
 /// Longest chain of symbolic links followed before giving up (Linux's own limit).
 const MAX_SYMLINKS: usize = 40;
@@ -36,6 +42,42 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
     let mut file = atomic_write_file::AtomicWriteFile::open(&destination)?;
     file.write_all(bytes)?;
     file.commit()
+}
+
+/// Checks, without writing anything, that [`write_atomic`] can write `path`: it names a file (not
+/// `..` or a root), what it names (through symbolic links) is nothing yet or a regular file, and
+/// the folder it goes into exists. The errors name `path` and what was expected.
+pub fn check_destination(path: &Path) -> io::Result<()> {
+    if path.file_name().is_none() {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("{}: expected the path of a file", path.display()),
+        ));
+    }
+    let destination = regular_file_destination(path)?;
+    let folder = match destination.parent() {
+        Some(folder) if !folder.as_os_str().is_empty() => folder,
+        _ => Path::new("."),
+    };
+    match std::fs::metadata(folder) {
+        Ok(metadata) if metadata.is_dir() => Ok(()),
+        Ok(_) => Err(io::Error::new(
+            io::ErrorKind::NotADirectory,
+            format!("{}: {} is not a folder", path.display(), folder.display()),
+        )),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Err(io::Error::new(
+            io::ErrorKind::NotFound,
+            format!(
+                "{}: the folder {} does not exist",
+                path.display(),
+                folder.display()
+            ),
+        )),
+        Err(e) => Err(io::Error::new(
+            e.kind(),
+            format!("{}: {}: {e}", path.display(), folder.display()),
+        )),
+    }
 }
 
 /// Whether `name` is a temporary file that [`write_atomic`] makes while writing a file called
@@ -291,6 +333,39 @@ mod tests {
         if made {
             assert_refused(&node, "is a character device");
         }
+    }
+
+    #[test]
+    fn destinations_are_checked_before_writing() {
+        let dir = tempfile::tempdir().unwrap();
+        let new = dir.path().join("calibrated.toml");
+        check_destination(&new).unwrap();
+        std::fs::write(&new, "x").unwrap();
+        check_destination(&new).unwrap();
+        let link = dir.path().join("link.toml");
+        symlink("calibrated.toml", &link).unwrap();
+        check_destination(&link).unwrap();
+
+        let missing = dir.path().join("nodir/x.toml");
+        let err = check_destination(&missing).unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::NotFound);
+        assert!(err.to_string().contains("nodir does not exist"), "{err}");
+        let under_a_file = new.join("x.toml");
+        let err = check_destination(&under_a_file).unwrap_err();
+        assert!(err.to_string().contains("is not a folder"), "{err}");
+        let err = check_destination(Path::new("/dev/null")).unwrap_err();
+        assert!(
+            err.to_string().contains("/dev/null is a character device"),
+            "{err}"
+        );
+        let err = check_destination(dir.path()).unwrap_err();
+        assert!(err.to_string().contains("is a folder"), "{err}");
+        let err = check_destination(&dir.path().join("..")).unwrap_err();
+        assert!(
+            err.to_string().contains("expected the path of a file"),
+            "{err}"
+        );
+        assert_eq!(names(dir.path()), ["calibrated.toml", "link.toml"]);
     }
 
     #[test]

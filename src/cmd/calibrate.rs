@@ -4,7 +4,8 @@
 //! Every batch of candidates is simulated on every training trajectory in one batched rollout.
 //! Rerunning with the same output folder resumes from its `evaluations.csv` when it fits the same
 //! objective (recorded in `objective.toml`: data, time window, loss, bounds, seed, scene); `--fresh`
-//! starts over.
+//! starts over. The output folder is locked while the command runs (`<out>/.lock`): a second
+//! calibration into it is refused.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -22,6 +23,7 @@ use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
 
 use crate::error::input_error;
+use crate::files::{check_not_input, check_output, lock_folder, Input};
 
 /// Progress-bar ticks per batch.
 const TICKS_PER_BATCH: u64 = 1000;
@@ -62,9 +64,13 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             args.config.display()
         )));
     }
+    check_write_params(&args, &config)?;
     let (ids, trajectories) = training_trajectories(&config)?;
     let scene = config.scene(&args.config).map_err(input_error)?;
     check_bounds_in_scene(&config, &scene, &args.config)?;
+    // One command at a time in the output folder: nothing in it is removed (`--fresh`, leftovers)
+    // or written before the lock is held.
+    let _lock = lock_folder(&config.out_dir, true)?;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let space = config.space();
     if let Some(smc) = config.smc {
@@ -157,7 +163,6 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         config.optimiser().batch_size,
         out_dir.display()
     );
-    let created_out_dir = !out_dir.exists();
     // A folder with a log but no record (written by an earlier version) gets its record once
     // its log has been read back without error, at the end.
     let fresh_start = !recorded && !out_dir.join("evaluations.csv").exists();
@@ -193,7 +198,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         Ok(best) => best,
         Err(err) => {
             if fresh_start {
-                remove_empty_start(out_dir, created_out_dir);
+                remove_empty_start(out_dir);
             }
             return Err(driver_error(err));
         }
@@ -433,9 +438,10 @@ pub(crate) fn training_trajectories(
 }
 
 /// Removes what a calibration that stopped before logging its first batch wrote (the objective,
-/// the log's header, the folder when it made it): a start that failed or was interrupted leaves
-/// the output as it was. Best effort: what cannot be removed is a fresh start's, harmless.
-fn remove_empty_start(out_dir: &Path, created_out_dir: bool) {
+/// the log's header; the folder, when the command made it, goes with its lock): a start that
+/// failed or was interrupted leaves the output as it was. Best effort: what cannot be removed is a
+/// fresh start's, harmless.
+fn remove_empty_start(out_dir: &Path) {
     let log = out_dir.join("evaluations.csv");
     let logged = match std::fs::read_to_string(&log) {
         Ok(text) => text.lines().count() > 1,
@@ -446,9 +452,35 @@ fn remove_empty_start(out_dir: &Path, created_out_dir: bool) {
     }
     let _ = std::fs::remove_file(&log);
     let _ = std::fs::remove_file(out_dir.join(fingerprint::OBJECTIVE_FILE));
-    if created_out_dir {
-        let _ = std::fs::remove_dir(out_dir);
+}
+
+/// `--write-params` must be a file that can be written (checked before any simulation) and none
+/// of the calibration's inputs: its config, its scene, its dataset, or a file of its output folder
+/// that the calibration writes and reads back (`calibrated.toml` is the same scene).
+fn check_write_params(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow::Result<()> {
+    use rlpkg_calib::sampled_posterior::POSTERIOR_FILES;
+    const OPTION: &str = "--write-params";
+    let Some(path) = &args.write_params else {
+        return Ok(());
+    };
+    check_output(OPTION, path)?;
+    let preset = Path::new(&config.sim.preset);
+    let mut inputs = vec![Input::File(&args.config, "the calibration config")];
+    if !matches!(config.sim.preset.as_str(), "reference" | "physical") {
+        inputs.push(Input::File(preset, "the config's scene (`sim.preset`)"));
     }
+    inputs.push(Input::Folder(&config.data, "the config's dataset (`data`)"));
+    let mut names: Vec<&str> = driver::OUTPUT_FILES.to_vec();
+    names.extend(POSTERIOR_FILES);
+    names.push("corner.png");
+    names.retain(|name| *name != "calibrated.toml");
+    let outputs: Vec<PathBuf> = names.iter().map(|name| config.out_dir.join(name)).collect();
+    inputs.extend(
+        outputs
+            .iter()
+            .map(|file| Input::File(file, "a file of the calibration's output folder")),
+    );
+    check_not_input(OPTION, path, &inputs)
 }
 
 /// The evaluation log and the output files are the user's (exit 2: malformed log, folder that is

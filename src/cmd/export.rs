@@ -16,11 +16,12 @@ use rlpkg_agents::export::runtime::{
     Latency,
 };
 use rlpkg_agents::export::{to_onnx_bytes, ExportError, OnnxPolicy, PolicyGraph, TOLERANCE};
-use rlpkg_agents::runners::{evaluation_memory_bytes, TrainedPolicy};
+use rlpkg_agents::runners::{evaluation_memory_bytes, run_file_kind, TrainedPolicy, POLICY_FILE};
 use rlpkg_vec_env::VecEnv;
 use serde::Serialize;
 
 use crate::error::{agent_error, export_error, input_error};
+use crate::files::{check_output, resolved};
 use crate::tasks::{Task, Training};
 
 /// Upper bound of `--latency`: each run is timed and kept for the median.
@@ -118,6 +119,12 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
             run.display()
         )));
     }
+    let out = args.out.clone().unwrap_or_else(|| run.join(POLICY_FILE));
+    check_not_run_file(run, &out)?;
+    if args.check_data {
+        check_not_run_file(run, &check_path(&out))?;
+    }
+    check_out_path(&out)?;
     let training = Training::of_run(run).map_err(agent_error)?;
     let burn = TrainedPolicy::load(
         run,
@@ -137,7 +144,6 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     if !args.with_value {
         graph.critic = None;
     }
-    let out = args.out.clone().unwrap_or_else(|| run.join("policy.onnx"));
     let rows = usize::try_from(args.verify)
         .map_err(|_| input_error(format!("--verify {}: too large", args.verify)))?;
     let widths: usize = graph.actor.iter().map(|layer| layer.d_out).sum();
@@ -317,7 +323,27 @@ impl CheckedExport<'_> {
     }
 }
 
-/// The output folder must exist and the path must name a file.
+/// An output inside the run folder must not be one of the run's own files (its configuration,
+/// event files, checkpoints, lock), compared once canonicalised: the run's policy, or a new file
+/// beside it, is fine.
+fn check_not_run_file(run: &Path, out: &Path) -> anyhow::Result<()> {
+    let (Ok(run_dir), Some(target)) = (run.canonicalize(), resolved(out)) else {
+        return Ok(()); // no folder to write into: `check_out_path` says so
+    };
+    match run_file_kind(&run_dir, &target) {
+        Some(kind) => Err(input_error(format!(
+            "--out {}: is {kind} ({}); writing it would destroy the run: expected a file \
+             outside the run's files, e.g. {} or a path outside {}",
+            out.display(),
+            target.display(),
+            run.join(POLICY_FILE).display(),
+            run.display()
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// The output folder must exist and the path must name a file that can be replaced.
 fn check_out_path(out: &Path) -> anyhow::Result<()> {
     let parent = match out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
@@ -336,7 +362,7 @@ fn check_out_path(out: &Path) -> anyhow::Result<()> {
             parent.display()
         )));
     }
-    Ok(())
+    check_output("--out", out)
 }
 
 fn print_summary(s: &ExportSummary) {

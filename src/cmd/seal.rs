@@ -22,7 +22,7 @@ use rlpkg_sim::SceneConfig;
 use serde::Deserialize;
 
 use crate::error::{input_error, output_error};
-use crate::files::write_atomic;
+use crate::files::{check_not_input, check_output, write_atomic, Input};
 
 /// Seal subcommands.
 #[derive(Subcommand)]
@@ -192,8 +192,55 @@ struct Take {
     observed: DetachmentScan,
 }
 
+/// The files `rlpkg seal fit` writes into its output folder.
+const OUTPUT_FILES: [&str; 4] = ["candidates.csv", "takes.csv", "fit.toml", "scene.toml"];
+
+/// The output folder and `--write-params`, checked before any replay: the folder must be one or
+/// be creatable (no file in its place or above it), and `--write-params` a writable file that is
+/// none of the fit's inputs (config, scene, dataset) nor one of the folder's other files.
+fn check_outputs(args: &FitArgs, config: &FitConfig) -> anyhow::Result<()> {
+    let out = &config.out;
+    let existing = out
+        .ancestors()
+        .find(|dir| dir.as_os_str().is_empty() || dir.exists());
+    if let Some(dir) = existing.filter(|dir| !dir.as_os_str().is_empty() && !dir.is_dir()) {
+        let what = if dir == out.as_path() {
+            "is a file".to_string()
+        } else {
+            format!("{} is a file", dir.display())
+        };
+        return Err(input_error(format!(
+            "{}: key `out` = {}: {what}; expected a folder for {}",
+            args.config.display(),
+            out.display(),
+            OUTPUT_FILES.join(", ")
+        )));
+    }
+    let Some(path) = &args.write_params else {
+        return Ok(());
+    };
+    const OPTION: &str = "--write-params";
+    check_output(OPTION, path)?;
+    let written: Vec<PathBuf> = OUTPUT_FILES[..3]
+        .iter()
+        .map(|name| out.join(name))
+        .collect();
+    let mut inputs = vec![
+        Input::File(&args.config, "the seal fit config"),
+        Input::File(&config.scene, "the config's scene (`scene`)"),
+        Input::Folder(&config.dataset, "the config's dataset (`dataset`)"),
+    ];
+    inputs.extend(
+        written
+            .iter()
+            .map(|file| Input::File(file, "a file the fit writes into `out`")),
+    );
+    check_not_input(OPTION, path, &inputs)
+}
+
 fn fit(args: FitArgs) -> anyhow::Result<()> {
     let config = FitConfig::load(&args.config)?;
+    check_outputs(&args, &config)?;
     let scene = SceneConfig::load(&config.scene).map_err(input_error)?;
     let dataset = Dataset::open(&config.dataset).map_err(input_error)?;
     let started = Instant::now();
@@ -392,12 +439,11 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
         c.balanced_agreement(),
         toml::to_string_pretty(&fitted_scene)?
     );
-    for (name, text) in [
-        ("candidates.csv", &candidates_csv),
-        ("takes.csv", &takes_csv),
-        ("fit.toml", &fit_toml),
-        ("scene.toml", &scene_text),
-    ] {
+    for (name, text) in
+        OUTPUT_FILES
+            .iter()
+            .zip([&candidates_csv, &takes_csv, &fit_toml, &scene_text])
+    {
         write_atomic(&config.out.join(name), text.as_bytes()).map_err(output_error)?;
     }
     if let Some(path) = &args.write_params {

@@ -2,18 +2,20 @@
 //! is exported as ONNX (`<run>/policy.onnx`) at the end.
 //!
 //! The task's environment is built here from the configuration ([`crate::tasks`]) and handed to
-//! the trainer.
+//! the trainer. The run folder is locked while the command runs (`<run>/.lock`): a second
+//! `train` of the same run is refused.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use rlpkg_agents::runners::{clean_leftovers, POLICY_FILE};
+use rlpkg_agents::runners::{clean_leftovers, run_config_path, POLICY_FILE};
 use rlpkg_agents::{TrainedPolicy, Trainer};
 
 use crate::cmd::eval::replaced_packages_line;
 use crate::cmd::export::{export_policy, ExportOptions};
 use crate::error::{agent_error, input_error};
+use crate::files::lock_folder;
 use crate::overrides::Override;
 use crate::tasks::Training;
 
@@ -68,13 +70,18 @@ fn report_reset(trainer: &Trainer) {
 
 /// Runs `rlpkg train`.
 pub fn run(args: TrainArgs) -> anyhow::Result<()> {
-    let (mut trainer, run_dir) = match (&args.resume, &args.config) {
+    // One command at a time trains a run folder: the lock is taken before anything in it is read
+    // for a resume or written, and held until the end (export included).
+    let (mut trainer, run_dir, _lock) = match (&args.resume, &args.config) {
         (Some(run_dir), _) => {
+            // A folder that is not a run is named as such, not as one that cannot be locked.
+            run_config_path(run_dir).map_err(agent_error)?;
+            let lock = lock_folder(run_dir, false)?;
             let mut trainer = Training::of_run(run_dir)
                 .and_then(Training::trainer)
                 .map_err(agent_error)?;
             trainer.load_checkpoint(run_dir).map_err(agent_error)?;
-            (trainer, run_dir.clone())
+            (trainer, run_dir.clone(), lock)
         }
         (None, Some(config_path)) => {
             let training = Training::load_with(config_path, &args.set)?;
@@ -90,8 +97,9 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             }
             let run_dir = args.out_dir.join(name);
             let trainer = training.trainer().map_err(agent_error)?;
+            let lock = lock_folder(&run_dir, true)?;
             trainer.create_run_dir(&run_dir).map_err(agent_error)?;
-            (trainer, run_dir)
+            (trainer, run_dir, lock)
         }
         (None, None) => {
             return Err(input_error(
@@ -100,7 +108,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         }
     };
     // What a run stopped at once (a second signal, a kill) left behind; a new run's folder may
-    // hold the leftovers of one stopped before its configuration was written.
+    // hold the leftovers of one stopped before its configuration was written. Under the lock, no
+    // other command is writing these.
     for path in clean_leftovers(&run_dir).map_err(agent_error)? {
         eprintln!("removed the leftover temporary {}", path.display());
     }

@@ -190,6 +190,28 @@ fn update_number(name: &str) -> Option<usize> {
     digits.parse().ok()
 }
 
+/// What `path` is among the files a run keeps in `run_dir` (both paths canonical): its
+/// configuration, an event file, a file of its checkpoints (anything under `checkpoints/`, written
+/// or not) or the lock of the command training it; `None` for any other path, the exported
+/// policy among them. An output that is one of these would destroy the run.
+pub fn run_file_kind(run_dir: &Path, path: &Path) -> Option<&'static str> {
+    let inside = path.strip_prefix(run_dir).ok()?;
+    let mut parts = inside.components();
+    let first = parts.next()?.as_os_str().to_str()?;
+    let alone = parts.next().is_none();
+    if first == CHECKPOINTS {
+        Some("a file of the run's checkpoints")
+    } else if alone && first == CONFIG_FILE {
+        Some("the run's configuration")
+    } else if alone && first.starts_with(super::tensorboard::EVENTS_PREFIX) {
+        Some("an event file of the run")
+    } else if alone && first == rlpkg_files::lock::LOCK_FILE {
+        Some("the run's lock file")
+    } else {
+        None
+    }
+}
+
 /// Removes what a run stopped at once (a second Ctrl-C, a kill) left in `run_dir`: the temporary
 /// copies of `config.toml`, `policy.onnx` and `checkpoints/latest`, and unfinished checkpoint
 /// folders. Nothing in use is touched: these are only ever renamed into place or dropped. Returns

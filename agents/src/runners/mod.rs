@@ -6,7 +6,7 @@ mod policy;
 mod tensorboard;
 
 pub use checkpoint::{
-    clean_leftovers, latest_checkpoint, run_config_path, CONFIG_FILE, POLICY_FILE,
+    clean_leftovers, latest_checkpoint, run_config_path, run_file_kind, CONFIG_FILE, POLICY_FILE,
 };
 pub use on_policy::{TrainSummary, Trainer, UpdateLog, UpdateTiming};
 pub use policy::{evaluation_memory_bytes, EvalSummary, TrainedPolicy};

@@ -80,6 +80,9 @@ struct SessionLog {
     msg: String,
 }
 
+/// How the name of a run's event file starts.
+pub(crate) const EVENTS_PREFIX: &str = "events.out.tfevents.";
+
 /// Where a run's event file stood at a checkpoint.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -129,7 +132,7 @@ impl EventWriter {
         // The process id and a counter keep names unique; TensorBoard reads files in name order.
         static CREATED: AtomicU64 = AtomicU64::new(0);
         let name = format!(
-            "events.out.tfevents.{secs:010}.rlpkg.{}.{}",
+            "{EVENTS_PREFIX}{secs:010}.rlpkg.{}.{}",
             std::process::id(),
             CREATED.fetch_add(1, Ordering::Relaxed)
         );
@@ -169,7 +172,7 @@ impl EventWriter {
                 (parts.next(), parts.next()),
                 (Some(std::path::Component::Normal(_)), None)
             );
-            if !plain_name || !position.file.starts_with("events.out.tfevents.") {
+            if !plain_name || !position.file.starts_with(EVENTS_PREFIX) {
                 return Err(AgentError::Checkpoint {
                     path: run_dir.into(),
                     reason: format!(

@@ -585,3 +585,37 @@ fn asymmetric_resume_continues_exactly_like_an_uninterrupted_run() {
     let mut grouped = grouped_trainer(&[0, 1, 2, 3], false);
     assert!(grouped.load_checkpoint(symmetric_dir.path()).is_err());
 }
+
+#[test]
+fn the_files_of_a_run_are_known_by_their_place() {
+    let run = Path::new("/data/runs/tiny");
+    for (file, kind) in [
+        ("config.toml", Some("the run's configuration")),
+        (
+            "checkpoints/update_000004/model.bpk",
+            Some("a file of the run's checkpoints"),
+        ),
+        (
+            "checkpoints/latest",
+            Some("a file of the run's checkpoints"),
+        ),
+        (
+            "checkpoints/new.onnx",
+            Some("a file of the run's checkpoints"),
+        ),
+        (
+            "events.out.tfevents.0000000001.rlpkg.7.0",
+            Some("an event file of the run"),
+        ),
+        (".lock", Some("the run's lock file")),
+        ("policy.onnx", None),
+        ("pendulum.onnx", None),
+        ("sub/config.toml", None),
+    ] {
+        assert_eq!(run_file_kind(run, &run.join(file)), kind, "{file}");
+    }
+    assert_eq!(
+        run_file_kind(run, Path::new("/data/runs/other/config.toml")),
+        None
+    );
+}
