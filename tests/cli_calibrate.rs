@@ -318,6 +318,7 @@ max_seconds = 0.05
 particles = 8
 moves = 1
 seed = 4
+polish_iterations = 2
 
 [smc.mode_search]
 population = 4

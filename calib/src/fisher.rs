@@ -74,6 +74,12 @@ pub struct FisherAnalysis {
     /// The integrated autocorrelation time (s) of the markers' residuals at the point: how long
     /// the model's error stays alike, against the likelihood's assumed `decorrelation_s`.
     pub residual_correlation_s: f64,
+    /// Gradient of the log-likelihood at the point (unit cube, search order).
+    pub gradient: Vec<f64>,
+    /// The information matrix itself (unit cube): the Gauss–Newton curvature a local search
+    /// steps with.
+    #[serde(skip)]
+    pub information: DMatrix<f64>,
 }
 
 /// Integrated autocorrelation time (in samples) of one series: `1 + 2 Σ ρ_j`, summed while the
@@ -115,6 +121,8 @@ struct JacobianObserver<'a> {
     residuals: Vec<Option<Vec<f64>>>,
     sums: [f64; 2],
     gram: [DMatrix<f64>; 2],
+    /// `Σ w r J` per term (half the gradient of the term's `S`).
+    slope: [Vec<f64>; 2],
     incomplete: usize,
     /// The point's residual coordinates per (target, track, axis), frame after frame.
     series: BTreeMap<(usize, u32, usize), Vec<f64>>,
@@ -149,6 +157,7 @@ impl<'a> JacobianObserver<'a> {
             residuals: vec![None; d + 1],
             sums: [0.0; 2],
             gram: [DMatrix::zeros(d, d), DMatrix::zeros(d, d)],
+            slope: [vec![0.0; d], vec![0.0; d]],
             incomplete: 0,
             series: BTreeMap::new(),
         }
@@ -205,6 +214,7 @@ impl<'a> JacobianObserver<'a> {
                     .map(|c| (r[c + 1][i] - r[0][i]) / self.steps[c])
                     .collect();
                 for a in 0..d {
+                    self.slope[term][a] += weight * row[a] * r[0][i];
                     for b in 0..d {
                         self.gram[term][(a, b)] += weight * row[a] * row[b];
                     }
@@ -283,6 +293,13 @@ pub fn fisher_information(
     let scale = |count: f64, s: f64| if s > 0.0 { count / s } else { 0.0 };
     let information = &observer.gram[0] * scale(counts.package_count, s_p)
         + &observer.gram[1] * scale(counts.object_count, s_o);
+    // ∂ ln L = −(n/2) ∂S / S per term, ∂S = 2 Σ w r J.
+    let gradient: Vec<f64> = (0..d)
+        .map(|a| {
+            -scale(counts.package_count, s_p) * observer.slope[0][a]
+                - scale(counts.object_count, s_o) * observer.slope[1][a]
+        })
+        .collect();
     let eigen = SymmetricEigen::new(information.clone());
     let mut order: Vec<usize> = (0..d).collect();
     order.sort_by(|&a, &b| eigen.eigenvalues[b].total_cmp(&eigen.eigenvalues[a]));
@@ -354,6 +371,8 @@ pub fn fisher_information(
         incomplete_frames: observer.incomplete,
         errors_m2: [s_p, s_o],
         residual_correlation_s,
+        gradient,
+        information,
     })
 }
 

@@ -12,6 +12,7 @@
 //! * [`sampled_posterior`] — a calibration that returns the posterior (SMC on the simulator);
 //! * [`smc`] — adaptive tempered sequential Monte Carlo: a posterior evaluated by the simulator;
 //! * [`cmaes`] — CMA-ES with ask-and-tell: the search for the mode the sampler may start from;
+//! * [`polish`] — Levenberg–Marquardt steps from the best draw to the mode;
 //! * [`mcmc`] — the affine-invariant ensemble sampler the posterior draws with;
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
 //! * [`config`] — `configs/calibrate/study.toml`;
@@ -29,6 +30,7 @@ pub mod fisher;
 pub mod gp;
 pub mod mcmc;
 pub mod objective;
+pub mod polish;
 pub mod posterior;
 pub mod recovery;
 pub mod sampled_posterior;

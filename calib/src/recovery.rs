@@ -272,7 +272,7 @@ pub fn recover_sampled(
             counts.log_likelihood(&at_truth[0]),
             posterior.best_log_likelihood,
         ],
-        evaluations: posterior.evaluations,
+        evaluations: posterior.evaluations + posterior.polished_evaluations,
         parameters,
     })
 }
@@ -527,6 +527,7 @@ mod tests {
             max_stages: 100,
             seed: 1,
             mode_search: None,
+            polish_iterations: 0,
         };
         let weights = LossWeights {
             object: 1.0,

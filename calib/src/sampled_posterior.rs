@@ -12,7 +12,9 @@
 //! * `samples.csv`: the posterior draws ([`crate::posterior::samples_csv`], SI values);
 //! * `posterior.toml`: per parameter the median, the 90 % credible interval, its share of the box
 //!   and the best draw's value; the counts and the evidence;
-//! * `best.toml`: the draw of highest likelihood ([`CalibratedParams`]);
+//! * `best.toml`: the draw of highest likelihood, or the point `smc.polish_iterations`
+//!   Levenberg–Marquardt steps ([`crate::polish`]) reach from it when that is higher
+//!   ([`CalibratedParams`]);
 //! * `fisher.toml`: the Fisher information at that draw ([`crate::fisher`]): which combinations
 //!   of parameters the recordings pin down.
 
@@ -27,6 +29,7 @@ use crate::driver::{write_atomically, write_toml, CalibratedParams, FitSummary};
 use crate::evallog::{EvaluationLog, LogError, LoggedEvaluation};
 use crate::fisher::{fisher_information, FisherAnalysis};
 use crate::objective::{summarise, SimObjective};
+use crate::polish::polish;
 use crate::posterior::{quantile, samples_csv};
 use crate::smc::{self, SmcError, SmcSettings, Stage};
 use crate::space::ParamSpace;
@@ -107,8 +110,10 @@ pub struct SampledPosterior {
     pub log_evidence: f64,
     /// Independent residual coordinates of the package markers and of the object.
     pub independent_residuals: [f64; 2],
-    /// Highest log-likelihood of the draws.
+    /// Highest log-likelihood of the draws, or of the polished point when it is higher.
     pub best_log_likelihood: f64,
+    /// Candidates simulated by the polish after sampling (`smc.polish_iterations`).
+    pub polished_evaluations: usize,
     /// The draws (SI values), in the search order.
     #[serde(skip)]
     pub draws: Vec<Vec<f64>>,
@@ -197,24 +202,49 @@ pub fn sample_posterior(
         .iter()
         .find(|r| r.params == draws[best_index])
         .expect("every draw was evaluated");
+    let mut best_point = draws[best_index].clone();
+    let mut best_log_likelihood = result.log_likelihoods[best_index];
+    let mut metrics = [
+        best_row.metrics[0],
+        best_row.metrics[1],
+        best_row.metrics[2],
+    ];
+    let mut polished_evaluations = 0;
+    if settings.polish_iterations > 0 {
+        let polished = polish(
+            objective,
+            space,
+            &settings_of_likelihood,
+            &best_point,
+            settings.polish_iterations,
+        )
+        .map_err(|e| SampledPosteriorError::Smc(SmcError::Likelihood(e.to_string())))?;
+        polished_evaluations = polished.evaluations;
+        if polished.log_likelihood > best_log_likelihood {
+            let summary = summarise(&polished.outcome, objective.weights());
+            metrics = [summary.loss, summary.chamfer_m, summary.object_mse_m2];
+            best_point = polished.point;
+            best_log_likelihood = polished.log_likelihood;
+        }
+    }
     let best = CalibratedParams {
         params: names
             .iter()
             .map(|n| n.to_string())
-            .zip(draws[best_index].iter().copied())
+            .zip(best_point.iter().copied())
             .collect(),
         fit: FitSummary {
-            loss: best_row.metrics[0],
-            chamfer_m: best_row.metrics[1],
-            object_mse_m2: best_row.metrics[2],
-            evaluations: all.len(),
+            loss: metrics[0],
+            chamfer_m: metrics[1],
+            object_mse_m2: metrics[2],
+            evaluations: all.len() + polished_evaluations,
         },
     };
-    let parameters = intervals(space, &result.draws, &draws[best_index]);
+    let parameters = intervals(space, &result.draws, &best_point);
     let fisher = fisher_information(
         objective,
         space,
-        &draws[best_index],
+        &best_point,
         &settings_of_likelihood,
         FISHER_STEP,
     )
@@ -226,7 +256,8 @@ pub fn sample_posterior(
         stages: result.stages.len(),
         log_evidence: result.log_evidence,
         independent_residuals: [likelihood.package_count, likelihood.object_count],
-        best_log_likelihood: result.log_likelihoods[best_index],
+        best_log_likelihood,
+        polished_evaluations,
         draws,
         search_log: result.search,
         stage_log: result.stages,

@@ -62,6 +62,10 @@ pub struct SmcSettings {
     /// A CMA-ES search for the mode before sampling; the population then starts around it.
     #[serde(default)]
     pub mode_search: Option<ModeSearchSettings>,
+    /// Levenberg–Marquardt steps from the best draw after sampling ([`crate::polish`]); the
+    /// polished point is the calibration's best when it is better. Not part of the sampler.
+    #[serde(default)]
+    pub polish_iterations: usize,
 }
 
 fn default_ess_fraction() -> f64 {
@@ -418,6 +422,12 @@ pub fn check_settings(dim: usize, s: &SmcSettings) -> Result<(), SmcError> {
     if !(1..=10_000).contains(&s.max_stages) {
         return fail(format!("max_stages = {}: expected 1..=10000", s.max_stages));
     }
+    if s.polish_iterations > 1000 {
+        return fail(format!(
+            "polish_iterations = {}: expected 0..=1000",
+            s.polish_iterations
+        ));
+    }
     if let Some(mode) = &s.mode_search {
         cmaes::check_settings(dim, mode).map_err(SmcError::Settings)?;
     }
@@ -588,6 +598,7 @@ mod tests {
             max_stages: 100,
             seed,
             mode_search: None,
+            polish_iterations: 0,
         }
     }
 

@@ -378,12 +378,13 @@ fn run_posterior(
     print!("{}", posterior_table(&posterior));
     print!("{}", rlpkg_calib::fisher::fisher_table(&posterior.fisher));
     println!(
-        "{} candidates simulated in {} search generations and {} stages, {wall:.1} s ({:.1} per s); \
-         best log-likelihood {:.2}",
+        "{} candidates simulated in {} search generations and {} stages, {} more polishing, {wall:.1} s \
+         ({:.1} per s); best log-likelihood {:.2}",
         posterior.evaluations,
         posterior.search_generations,
         posterior.stages,
-        posterior.evaluations as f64 / wall.max(1e-9),
+        posterior.polished_evaluations,
+        (posterior.evaluations + posterior.polished_evaluations) as f64 / wall.max(1e-9),
         posterior.best_log_likelihood
     );
     println!(
