@@ -14,6 +14,10 @@ use crate::transport::{self, Transport, TransportConfig};
 /// Every task id, in the order messages list them.
 pub const IDS: [&str; 3] = [cartpole::ID, pendulum::ID, transport::ID];
 
+/// The most copies [`Task::build`] makes: a million lanes is far beyond what a machine steps in
+/// useful time, and a size from user input is checked before it is allocated.
+pub const MAX_ENVS: usize = 1 << 20;
+
 /// The settings table `Transport-v0` takes.
 pub const TRANSPORT_TABLE: &str = "transport";
 
@@ -170,6 +174,12 @@ impl Task {
     pub fn build(&self, num_envs: usize) -> Result<Box<dyn VecEnv>, EnvError> {
         if num_envs == 0 {
             return Err(EnvError::NoEnvs(num_envs));
+        }
+        if num_envs > MAX_ENVS {
+            return Err(EnvError::TooManyEnvs {
+                got: num_envs,
+                max: MAX_ENVS,
+            });
         }
         Ok(match self {
             Task::CartPole => Box::new(CartPole::new(num_envs)),

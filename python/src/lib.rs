@@ -378,6 +378,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(rust_rollout_digest, m)?)?;
     m.add_function(wrap_pyfunction!(rust_step_seconds, m)?)?;
     m.add("IDS", IDS.to_vec())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     // Where the package was built from: the repository whose configs/ the defaults name.
     m.add("REPOSITORY", concat!(env!("CARGO_MANIFEST_DIR"), "/.."))?;
     Ok(())

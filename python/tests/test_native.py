@@ -1,5 +1,6 @@
 """The Rust core from Python: parity with Rust-only rollouts, the GIL, bad input."""
 
+import re
 import threading
 import time
 
@@ -95,6 +96,10 @@ def test_bad_input_raises(tmp_path, small_transport):
         rlpkg.make_vec("CartPole-v1", 2, autoreset_mode="later")
     with pytest.raises(ValueError, match="num_envs"):
         rlpkg.make_vec("CartPole-v1", 0)
+    # Checked before anything is allocated (2**40 copies would abort the interpreter).
+    with pytest.raises(ValueError, match="at most 1048576 copies"):
+        rlpkg.make_vec("CartPole-v1", 2**40)
+    assert re.fullmatch(r"\d+\.\d+\.\d+", rlpkg.__version__)
     text = open(small_transport).read().replace("control_hz = 20.0", "control_hz = 20.0\ncontrl_hz = 3")
     bad = tmp_path / "bad.toml"
     bad.write_text(text)

@@ -50,6 +50,14 @@ pub enum EnvError {
     /// `num_envs` must be at least one.
     #[error("num_envs must be >= 1, got {0}")]
     NoEnvs(usize),
+    /// More copies than a registry builds (checked before anything is allocated).
+    #[error("num_envs = {got}: expected at most {max} copies")]
+    TooManyEnvs {
+        /// The number asked for.
+        got: usize,
+        /// The most a task builds.
+        max: usize,
+    },
     /// A configuration value is outside its allowed range.
     #[error("{file}: key `{key}` = {value}: expected {expected}")]
     Config {

@@ -11,11 +11,12 @@
 """
 
 from rlpkg._env import RlpkgEnv, make
-from rlpkg._native import IDS, ProfileReference, rust_rollout_digest
+from rlpkg._native import IDS, ProfileReference, __version__, rust_rollout_digest
 from rlpkg._vector import RlpkgVectorEnv, default_transport_config, make_vec
 
 __all__ = [
     "IDS",
+    "__version__",
     "ProfileReference",
     "RlpkgEnv",
     "RlpkgVectorEnv",

@@ -7,6 +7,7 @@ import numpy as np
 import numpy.typing as npt
 
 IDS: list[str]
+__version__: str
 REPOSITORY: str
 
 class VecEnvCore:
