@@ -260,7 +260,7 @@ mod tests {
     }
 
     #[test]
-    fn ids_name_their_tasks_and_unknown_ids_list_the_known() {
+    fn tasks_without_settings_are_built_by_id() {
         assert_eq!(
             Task::by_id("CartPole-v1")
                 .unwrap()
@@ -269,15 +269,27 @@ mod tests {
                 .num_envs(),
             3
         );
-        let err = Task::by_id("Transport-v0").unwrap_err().to_string();
+        let pendulum = Task::by_id("Pendulum-v1").unwrap();
+        assert_eq!(pendulum.spec().unwrap().action.dim(), 1);
+        assert_eq!(pendulum.build(2).unwrap().spec(), &pendulum.spec().unwrap());
+        let err = Task::by_id("Transport-v0").err().unwrap().to_string();
         assert!(err.contains("[transport] table"), "{err}");
         let err = Task::from_file("MountainCar-v0", None)
-            .unwrap_err()
+            .err()
+            .unwrap()
             .to_string();
         assert!(
-            err.contains("MountainCar-v0") && err.contains("Pendulum-v1"),
+            err.contains("MountainCar-v0") && err.contains("CartPole-v1"),
             "{err}"
         );
+        assert!(Task::CartPole.build(0).is_err());
+        let err = Task::CartPole.build(1 << 40).err().unwrap().to_string();
+        assert!(err.contains("at most 1048576"), "{err}");
+        let ids: Vec<String> = Task::without_settings()
+            .iter()
+            .map(|task| task.spec().unwrap().id)
+            .collect();
+        assert_eq!(ids, IDS[..2]);
     }
 
     #[test]

@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 
 use rlpkg_agents::runners::TrainedPolicy;
-use rlpkg_env::tasks::IDS;
 
 use super::*;
 
@@ -32,34 +31,6 @@ fn transport_text() -> String {
 
 fn parse(text: &str) -> Result<Training, AgentError> {
     Training::parse(text.to_string(), Path::new("cfg.toml"))
-}
-
-#[test]
-fn tasks_without_settings_are_built_by_id() {
-    assert_eq!(
-        Task::by_id("CartPole-v1")
-            .unwrap()
-            .build(3)
-            .unwrap()
-            .num_envs(),
-        3
-    );
-    let pendulum = Task::by_id("Pendulum-v1").unwrap();
-    assert_eq!(pendulum.spec().unwrap().action.dim(), 1);
-    assert_eq!(pendulum.build(2).unwrap().spec(), &pendulum.spec().unwrap());
-    let err = Task::by_id("Transport-v0").err().unwrap().to_string();
-    assert!(err.contains("[transport] table"), "{err}");
-    let err = Task::by_id("MountainCar-v0").err().unwrap().to_string();
-    assert!(
-        err.contains("MountainCar-v0") && err.contains("CartPole-v1"),
-        "{err}"
-    );
-    assert!(Task::CartPole.build(0).is_err());
-    let ids: Vec<String> = Task::without_settings()
-        .iter()
-        .map(|task| task.spec().unwrap().id)
-        .collect();
-    assert_eq!(ids, IDS[..2]);
 }
 
 #[test]
