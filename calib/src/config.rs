@@ -65,6 +65,10 @@ pub struct SimSettings {
     pub dt: Option<f64>,
     /// Compare only the first `max_seconds` of each trajectory (short runs, tests); all when absent.
     pub max_seconds: Option<f64>,
+    /// Iterations per substep of the implicit solvers (`integrator.iterations` of the scene); the
+    /// preset's when absent. Too few leave the film's solve unconverged and the replays rough
+    /// under nudges far below the noise (`rlpkg posterior CONFIG --spread 1e-6` shows it).
+    pub iterations: Option<u32>,
     /// Hold the disc at each recording's start during the rest (`disc.hold_at_recorded_start` of
     /// the scene); the preset's setting when absent.
     pub hold_disc: Option<bool>,
@@ -165,6 +169,15 @@ impl CalibrateConfig {
                     "sim.dt",
                     dt.to_string(),
                     "a time step in (0, 0.01] s",
+                ));
+            }
+        }
+        if let Some(n) = self.sim.iterations {
+            if !(1..=1000).contains(&n) {
+                return Err(range(
+                    "sim.iterations",
+                    n.to_string(),
+                    "an integer in [1, 1000]",
                 ));
             }
         }
@@ -314,6 +327,9 @@ impl CalibrateConfig {
                 .map_err(|e| format!("{e} (sim.preset of {})", source.display()))?;
         if let Some(hold) = self.sim.hold_disc {
             scene.disc.hold_at_recorded_start = hold;
+        }
+        if let Some(n) = self.sim.iterations {
+            scene.integrator.iterations = n;
         }
         if let Some(hold) = self.sim.hold_orientation {
             scene.disc.hold_orientation = hold;
@@ -624,6 +640,10 @@ upper = 2.0
             ),
             (GOOD.replace("lower = 1.0e2", "lower = 0.0"), "log scale"),
             (GOOD.replace("between = 1", "between = 12"), "sim.between"),
+            (
+                GOOD.replace("between = 1", "between = 1\niterations = 0"),
+                "sim.iterations",
+            ),
             (GOOD.replace("kappa = 2.5", "kappa = -1.0"), "kappa"),
             (GOOD.replace("seed = 3", "seed = 3\ncolour = 1"), "colour"),
             (
@@ -638,5 +658,20 @@ upper = 2.0
                 "{key}: {msg}"
             );
         }
+    }
+
+    #[test]
+    fn sim_iterations_override_the_presets() {
+        let text = GOOD.replace("configs/scenes/study.toml", "reference");
+        let own = parse(&text)
+            .unwrap()
+            .scene(Path::new("calibrate.toml"))
+            .unwrap();
+        let more = parse(&text.replace("between = 1", "between = 1\niterations = 48"))
+            .unwrap()
+            .scene(Path::new("calibrate.toml"))
+            .unwrap();
+        assert_ne!(own.integrator.iterations, 48);
+        assert_eq!(more.integrator.iterations, 48);
     }
 }

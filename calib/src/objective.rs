@@ -6,7 +6,7 @@
 use std::sync::Arc;
 
 use rlpkg_mocap::Trajectory;
-use rlpkg_replay::loss::{LossKind, LossWeights};
+use rlpkg_replay::loss::{squared_distance, LossKind, LossWeights};
 use rlpkg_replay::{get_param, mean_loss, rollout, set_param, Candidate, ReplayError, Target};
 use rlpkg_sim::{Model, SceneConfig};
 
@@ -175,6 +175,103 @@ impl SimObjective {
     }
 }
 
+/// How far the replays of one nudged parameter set move from those of the unnudged one
+/// ([`SimObjective::spread`]): over every compared frame of every trajectory, the largest distance
+/// between a simulated marker site and the same site of the unnudged replay.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Spread {
+    /// The nudged parameter, or `all` when every one is nudged at once.
+    pub parameter: String,
+    /// Median over frames of the worst site's distance (m).
+    pub median_m: f64,
+    /// 90th percentile over frames of the worst site's distance (m).
+    pub p90_m: f64,
+    /// Largest worst-site distance of any frame (m).
+    pub max_m: f64,
+    /// Largest distance between the two discs' centres in any frame (m).
+    pub disc_max_m: f64,
+}
+
+/// The label of the candidate that nudges every parameter in [`SimObjective::spread`].
+pub const ALL_PARAMETERS: &str = "all";
+
+impl SimObjective {
+    /// The simulator's own sensitivity at `values`: each parameter alone, then all of them, scaled
+    /// by `1 + nudge` (a change far below what recordings can tell apart, e.g. 1e-6) and replayed
+    /// in one batch beside `values` itself; one [`Spread`] per nudged set. A smooth simulator moves
+    /// its replays by about `nudge` times their motion; a spread near the markers' noise means the
+    /// loss is rough at the scale the likelihood resolves, and no optimiser can tell the truth's
+    /// neighbourhood from afar. A replay that diverged counts its frames until then.
+    pub fn spread(&self, values: &[f64], nudge: f64) -> Result<Vec<Spread>, ReplayError> {
+        let mut sets = vec![values.to_vec()];
+        let mut labels = Vec::new();
+        for (i, name) in self.names.iter().enumerate() {
+            let mut v = values.to_vec();
+            v[i] *= 1.0 + nudge;
+            sets.push(v);
+            labels.push(name.clone());
+        }
+        sets.push(values.iter().map(|v| v * (1.0 + nudge)).collect());
+        labels.push(ALL_PARAMETERS.to_string());
+
+        /// Per nudged set: the worst site's distance in each frame, and the discs' largest.
+        struct Distances {
+            unnudged: Vec<Option<(Vec<[f64; 3]>, [f64; 3])>>,
+            worst: Vec<Vec<f64>>,
+            disc: Vec<f64>,
+        }
+        impl Observer for Distances {
+            fn frame(&mut self, o: &FrameObservation) {
+                let disc = o.disc.position.map(f64::from);
+                // Candidates are observed in order within a frame: the unnudged one first.
+                if o.candidate == 0 {
+                    self.unnudged[o.target] = Some((o.simulated_points.to_vec(), disc));
+                    return;
+                }
+                let Some((points, base_disc)) = &self.unnudged[o.target] else {
+                    return;
+                };
+                let worst = o
+                    .simulated_points
+                    .iter()
+                    .zip(points)
+                    .map(|(a, b)| squared_distance(a, b).sqrt())
+                    .fold(0.0, f64::max);
+                let set = o.candidate - 1;
+                self.worst[set].push(worst);
+                self.disc[set] = self.disc[set].max(squared_distance(&disc, base_disc).sqrt());
+            }
+        }
+        let mut distances = Distances {
+            unnudged: vec![None; self.targets.len()],
+            worst: vec![Vec::new(); labels.len()],
+            disc: vec![0.0; labels.len()],
+        };
+        self.rollouts_observed(&sets, &mut distances)?;
+        Ok(labels
+            .into_iter()
+            .zip(distances.worst)
+            .zip(distances.disc)
+            .map(|((parameter, mut worst), disc_max_m)| {
+                worst.sort_by(f64::total_cmp);
+                let quantile = |q: f64| {
+                    if worst.is_empty() {
+                        return f64::NAN;
+                    }
+                    worst[((worst.len() - 1) as f64 * q).round() as usize]
+                };
+                Spread {
+                    parameter,
+                    median_m: quantile(0.5),
+                    p90_m: quantile(0.9),
+                    max_m: quantile(1.0),
+                    disc_max_m,
+                }
+            })
+            .collect())
+    }
+}
+
 impl BatchObjective for SimObjective {
     fn evaluate(&mut self, candidates: &[Vec<f64>]) -> Result<Vec<CandidateResult>, String> {
         let outcomes = self.rollouts(candidates).map_err(|e| e.to_string())?;
@@ -281,5 +378,41 @@ mod tests {
             (found / 2.0e4).log10().abs() < 0.1,
             "recovered k_tri_e = {found} (true 2e4), {best:?}"
         );
+    }
+
+    #[test]
+    fn spread_is_zero_without_a_nudge_and_grows_with_it() {
+        // The reference scene on the coarse grid over 0.2 s of HHHHH, its own parameters.
+        let mut scene = load_scene("reference", Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        scene.health.object_outside = false;
+        let target = Target::new(&recorded("HHHHH"), Some(0.2), false).unwrap();
+        let names = vec!["k_tri_e".to_string(), "k_edge_e".to_string()];
+        let objective =
+            SimObjective::from_targets(&scene, names, vec![target], LossWeights::default())
+                .unwrap();
+        let at = objective.base_values();
+
+        // Each environment is bit-identical in any batch: an unchanged set does not move at all.
+        let still = objective.spread(&at, 0.0).unwrap();
+        assert_eq!(
+            still
+                .iter()
+                .map(|s| s.parameter.as_str())
+                .collect::<Vec<_>>(),
+            ["k_tri_e", "k_edge_e", ALL_PARAMETERS]
+        );
+        for s in &still {
+            assert_eq!((s.max_m, s.disc_max_m), (0.0, 0.0), "{s:?}");
+        }
+        // This explicit scene is smooth: a hundredfold nudge moves the sites about a hundredfold.
+        let small = objective.spread(&at, 1e-4).unwrap();
+        let large = objective.spread(&at, 1e-2).unwrap();
+        for (s, l) in small.iter().zip(&large) {
+            assert!(s.max_m > 0.0 && s.max_m < 1e-4, "{s:?}");
+            let ratio = l.max_m / s.max_m;
+            assert!((20.0..500.0).contains(&ratio), "{s:?} {l:?}");
+            assert!(s.median_m <= s.p90_m && s.p90_m <= s.max_m);
+        }
     }
 }

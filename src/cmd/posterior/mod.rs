@@ -10,10 +10,13 @@
 //!   Table 1;
 //! - [`recover`]: `rlpkg posterior CONFIG --recover K`, the parameter-recovery table;
 //! - [`validate`]: `rlpkg posterior CONFIG --validate N`, the draws replayed on the simulator and
-//!   kept where they fit.
+//!   kept where they fit;
+//! - [`spread`]: `rlpkg posterior CONFIG --spread NUDGE`, how far the replays move under a nudge
+//!   of the parameters far below what the recordings resolve.
 
 pub mod predictive;
 mod recover;
+mod spread;
 mod validate;
 
 use std::path::{Path, PathBuf};
@@ -93,6 +96,11 @@ pub struct PosteriorArgs {
     /// it where the simulator does not fit.
     #[arg(long, value_delimiter = ',', value_name = "FILES", conflicts_with_all = ["recover", "validate"])]
     pub replays: Vec<PathBuf>,
+    /// The simulator's own sensitivity instead: replay the config's recordings at its scene's
+    /// values with each parameter, then all of them, scaled by 1 + NUDGE (e.g. 1e-6), and print
+    /// how far the marker sites move beside the recordings' marker noise.
+    #[arg(long, value_name = "NUDGE", conflicts_with_all = ["recover", "validate", "from", "replays"])]
+    pub spread: Option<f64>,
     /// Validation: the posterior folder [default: `posterior` in the calibration folder].
     #[arg(long, value_name = "DIR", requires = "validate")]
     pub posterior: Option<PathBuf>,
@@ -126,6 +134,9 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
         seed: args.seed,
         ..PosteriorSettings::default()
     };
+    if let Some(nudge) = args.spread {
+        return spread::run(&args, config, nudge);
+    }
     if let Some(truths) = args.recover {
         return recover::run(&args, config, truths as usize, settings);
     }
