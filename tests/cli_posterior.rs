@@ -656,3 +656,54 @@ fn validate_replays_draws_and_keeps_those_within_the_threshold() {
     );
     assert_eq!(std::fs::read_dir(&empty).unwrap().count(), 0);
 }
+
+#[test]
+fn spread_prints_how_far_nudged_replays_move_beside_the_noise() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path(), 48, "train");
+    let preset = quick_preset(dir.path());
+    let cfg = config(dir.path(), &[("k_tri_e", 1e3, 1e6, true)]);
+    let body = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("data/deformable-sim-real", data.to_str().unwrap())
+        .replace(
+            "preset = \"reference\"",
+            &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
+        );
+    std::fs::write(&cfg, body).unwrap();
+    let out = rlpkg(
+        &["posterior", cfg.to_str().unwrap(), "--spread", "1e-3"],
+        "2",
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let mm = |name: &str| -> Vec<f64> {
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with(&format!("{name} ")))
+            .unwrap_or_else(|| panic!("no row for {name}:\n{stdout}"));
+        line.split_whitespace()
+            .skip(1)
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    // One parameter: nudging it alone and nudging all of them are the same replays.
+    let alone = mm("k_tri_e");
+    assert_eq!(alone, mm("all"), "{stdout}");
+    assert!(
+        alone[0] <= alone[1] && alone[1] <= alone[2] && alone[2] > 0.0,
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("marker noise of the recordings"),
+        "{stdout}"
+    );
+
+    let bad = rlpkg(&["posterior", cfg.to_str().unwrap(), "--spread", "0"], "2");
+    assert_eq!(bad.status.code(), Some(2), "{}", text(&bad.stderr));
+    assert!(
+        text(&bad.stderr).contains("--spread 0"),
+        "{}",
+        text(&bad.stderr)
+    );
+}
