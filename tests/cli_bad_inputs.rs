@@ -644,6 +644,59 @@ fn cases() -> Vec<Case> {
             ],
         },
         Case {
+            name: "transport: posterior draw beyond a parameter's range",
+            setup: |dir| {
+                shipped_config(
+                    dir,
+                    "transport-posterior.toml",
+                    "posterior = \"data/posteriors/coarse-soft-film\"",
+                    "posterior = \"posterior/samples.csv\"",
+                );
+                std::fs::create_dir(dir.join("posterior")).unwrap();
+                std::fs::write(
+                    dir.join("posterior/samples.csv"),
+                    "k_tri_e,k_spr_e,mu_con\n2000,30,0.5\n2000,30,1e6\n",
+                )
+                .unwrap();
+                args(&["train", "transport-posterior.toml"])
+            },
+            expected: &[
+                "posterior/samples.csv line 3 column 3",
+                "key `mu_con` = 1e6",
+                "[0, 1e2]",
+            ],
+        },
+        Case {
+            name: "calibration listing a recording twice",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                edit(
+                    &dir.join("calibrate.toml"),
+                    "trajectories = [\"HHHHH\"]",
+                    "trajectories = [\"HHHHH\", \"HHHHH\"]",
+                );
+                args(&["calibrate", "calibrate.toml"])
+            },
+            expected: &[
+                "calibrate.toml",
+                "trajectories[1]",
+                "each trajectory id once",
+            ],
+        },
+        Case {
+            name: "calibration given a recording twice on the command line",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&[
+                    "calibrate",
+                    "calibrate.toml",
+                    "--trajectories",
+                    "HHHHH,HHLHL,HHHHH",
+                ])
+            },
+            expected: &["--trajectories", "HHHHH is listed twice"],
+        },
+        Case {
             name: "recording: cup position with four values in meta.toml",
             setup: |dir| {
                 copy_dir(

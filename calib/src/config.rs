@@ -51,6 +51,14 @@ pub enum ConfigError {
     },
 }
 
+/// The first id of `ids` that repeats an earlier one, with its index: a recording listed twice
+/// would count twice in the loss without a word.
+pub fn repeated_id(ids: &[String]) -> Option<(usize, &String)> {
+    ids.iter()
+        .enumerate()
+        .find(|(i, id)| ids[..*i].contains(id))
+}
+
 /// Simulator settings of the calibration.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -285,6 +293,13 @@ impl CalibrateConfig {
                     "trajectories",
                     "[]".into(),
                     "at least one trajectory id (or omit the key for the train split)",
+                ));
+            }
+            if let Some((i, id)) = repeated_id(ids) {
+                return Err(range(
+                    &format!("trajectories[{i}]"),
+                    format!("{id:?}"),
+                    "each trajectory id once",
                 ));
             }
         }
@@ -640,6 +655,10 @@ upper = 2.0
             ),
             (GOOD.replace("lower = 1.0e2", "lower = 0.0"), "log scale"),
             (GOOD.replace("between = 1", "between = 12"), "sim.between"),
+            (
+                GOOD.replace(r#"["HHHHH", "HHLHL"]"#, r#"["HHHHH", "HHLHL", "HHHHH"]"#),
+                "trajectories[2]",
+            ),
             (
                 GOOD.replace("between = 1", "between = 1\niterations = 0"),
                 "sim.iterations",

@@ -56,6 +56,11 @@ impl CalibrationObjective {
         py.detach(|| {
             let mut cfg = CalibrateConfig::load(&config).map_err(value_error)?;
             if let Some(ids) = trajectories.filter(|ids| !ids.is_empty()) {
+                if let Some((_, id)) = rlpkg_calib::config::repeated_id(&ids) {
+                    return Err(value_error(format!(
+                        "trajectories: {id} is listed twice; expected each trajectory id once"
+                    )));
+                }
                 cfg.trajectories = Some(ids);
             }
             if max_seconds.is_some() {

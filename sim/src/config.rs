@@ -19,6 +19,25 @@ pub const PARAM_NAMES: [&str; 14] = [
     "k_spr_e", "k_spr_d", "k_con_e", "k_con_d", "k_con_f", "mu_con",
 ];
 
+/// The range of every parameter, in [`PARAM_NAMES`] order: physical signs (area stiffnesses
+/// strictly positive) and bounds far beyond any material, against typos.
+const PARAM_RANGES: [(f32, f32); 14] = [
+    (0.0, 1e10),
+    (1e-6, 1e10),
+    (0.0, 1e8),
+    (0.0, 1e8),
+    (0.0, 1e6),
+    (0.0, 1e10),
+    (1e-6, 1e10),
+    (0.0, 1e8),
+    (0.0, 1e10),
+    (0.0, 1e8),
+    (0.0, 1e10),
+    (0.0, 1e8),
+    (0.0, 1e8),
+    (0.0, 100.0),
+];
+
 /// Material parameters of one environment, named as in the paper.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -56,22 +75,35 @@ pub struct Params {
 impl Params {
     /// (name, value, lowest, highest) of every parameter, for range checks and display.
     pub fn entries(&self) -> [(&'static str, f32, f32, f32); 14] {
-        [
-            ("k_tri_e", self.k_tri_e, 0.0, 1e10),
-            ("k_tri_a", self.k_tri_a, 1e-6, 1e10),
-            ("k_tri_d", self.k_tri_d, 0.0, 1e8),
-            ("k_edge_e", self.k_edge_e, 0.0, 1e8),
-            ("k_edge_d", self.k_edge_d, 0.0, 1e6),
-            ("k_cup_e", self.k_cup_e, 0.0, 1e10),
-            ("k_cup_a", self.k_cup_a, 1e-6, 1e10),
-            ("k_cup_d", self.k_cup_d, 0.0, 1e8),
-            ("k_spr_e", self.k_spr_e, 0.0, 1e10),
-            ("k_spr_d", self.k_spr_d, 0.0, 1e8),
-            ("k_con_e", self.k_con_e, 0.0, 1e10),
-            ("k_con_d", self.k_con_d, 0.0, 1e8),
-            ("k_con_f", self.k_con_f, 0.0, 1e8),
-            ("mu_con", self.mu_con, 0.0, 100.0),
-        ]
+        let values = [
+            self.k_tri_e,
+            self.k_tri_a,
+            self.k_tri_d,
+            self.k_edge_e,
+            self.k_edge_d,
+            self.k_cup_e,
+            self.k_cup_a,
+            self.k_cup_d,
+            self.k_spr_e,
+            self.k_spr_d,
+            self.k_con_e,
+            self.k_con_d,
+            self.k_con_f,
+            self.mu_con,
+        ];
+        std::array::from_fn(|i| {
+            let (lo, hi) = PARAM_RANGES[i];
+            (PARAM_NAMES[i], values[i], lo, hi)
+        })
+    }
+
+    /// The `[lowest, highest]` value the parameter called `name` may take (as in
+    /// [`Params::entries`]); `None` for a name that is not a parameter.
+    pub fn range(name: &str) -> Option<(f32, f32)> {
+        PARAM_NAMES
+            .iter()
+            .position(|n| *n == name)
+            .map(|i| PARAM_RANGES[i])
     }
 
     /// The parameter named `name` (as in [`Params::entries`]), for setting by name.

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::config::PARAM_NAMES;
+use crate::config::{Params, PARAM_NAMES};
 use crate::episode::EpisodeSpec;
 use crate::error::SimError;
 
@@ -80,7 +80,8 @@ impl PosteriorDraws {
                 value: value.to_string(),
                 expected: expected.to_string(),
             };
-        let mut lines = text.lines();
+        // A spreadsheet's UTF-8 export starts with a byte-order mark, which is not part of a name.
+        let mut lines = text.strip_prefix('\u{feff}').unwrap_or(text).lines();
         let header = lines.next().unwrap_or("");
         let mut names: Vec<String> = Vec::new();
         for (c, name) in header.split(',').map(str::trim).enumerate() {
@@ -122,17 +123,20 @@ impl PosteriorDraws {
             }
             let mut row = Vec::with_capacity(names.len());
             for (c, (cell, name)) in cells.iter().zip(&names).enumerate() {
-                let value = cell.parse::<f32>().ok().filter(|v| v.is_finite());
-                let low_ok = |v: f32| if name == "mu_con" { v >= 0.0 } else { v > 0.0 };
-                match value {
-                    Some(v) if low_ok(v) => row.push(v),
+                let (lo, hi) = Params::range(name).expect("a header name is a parameter");
+                // A draw is a material: zero stiffness is no film (mu_con = 0 is frictionless).
+                let low_ok = |v: f32| if name == "mu_con" { v >= lo } else { v > lo };
+                match cell.parse::<f32>().ok() {
+                    Some(v) if v.is_finite() && low_ok(v) && v <= hi => row.push(v),
                     _ => {
-                        let expected = if name == "mu_con" {
-                            "a finite number >= 0"
+                        let bound = if name == "mu_con" { "[" } else { "(" };
+                        let low = if lo == 0.0 {
+                            "0".to_string()
                         } else {
-                            "a finite number > 0"
+                            format!("{lo:e}")
                         };
-                        return Err(bad(number, c + 1, name, cell, expected));
+                        let expected = format!("a number in {bound}{low}, {hi:e}]");
+                        return Err(bad(number, c + 1, name, cell, &expected));
                     }
                 }
             }
@@ -465,7 +469,11 @@ mod tests {
             ),
             (
                 "k_tri_e,mu_con\n-1,0.5\n",
-                &["line 2 column 1", "k_tri_e", "> 0"],
+                &["line 2 column 1", "k_tri_e", "(0, 1e10]"],
+            ),
+            (
+                "k_tri_e,mu_con\n1,1e6\n",
+                &["line 2 column 2", "mu_con", "1e6", "[0, 1e2]"],
             ),
             ("k_tri_e,mu_con\n1,inf\n", &["line 2 column 2", "mu_con"]),
             ("k_tri_e,mu_con\n1\n", &["line 2", "2 values"]),
@@ -480,6 +488,9 @@ mod tests {
         }
         // mu_con may be 0 (a frictionless contact); stiffnesses may not.
         PosteriorDraws::parse_csv("k_tri_e,mu_con\n1,0\n", "samples.csv").unwrap();
+        // A byte-order mark (a spreadsheet's UTF-8 export) is not part of the first name.
+        let marked = PosteriorDraws::parse_csv("\u{feff}k_tri_e,mu_con\n1,0\n", "samples.csv");
+        assert_eq!(marked.unwrap().names, ["k_tri_e", "mu_con"]);
     }
 
     #[test]

@@ -424,6 +424,16 @@ fn remove_outputs(out_dir: &Path, files: &[&str]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--trajectories` lists each id once.
+pub(crate) fn check_unique_trajectories(ids: &[String]) -> anyhow::Result<()> {
+    match rlpkg_calib::config::repeated_id(ids) {
+        Some((_, id)) => Err(input_error(format!(
+            "--trajectories: {id} is listed twice; expected each trajectory id once"
+        ))),
+        None => Ok(()),
+    }
+}
+
 /// The ids and recordings a calibration fits: `trajectories` of `config`, or its dataset's
 /// training split.
 pub(crate) fn training_trajectories(
@@ -538,6 +548,7 @@ fn apply_overrides(config: &mut CalibrateConfig, args: &CalibrateArgs) -> anyhow
         config.optimiser_mut().iterations = n;
     }
     if !args.trajectories.is_empty() {
+        check_unique_trajectories(&args.trajectories)?;
         config.trajectories = Some(args.trajectories.clone());
     }
     if let Some(s) = args.max_seconds {

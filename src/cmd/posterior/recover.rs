@@ -70,6 +70,7 @@ pub fn run(
     }
     let dataset = Dataset::open(&config.data).map_err(input_error)?;
     let ids = if !args.trajectories.is_empty() {
+        crate::cmd::calibrate::check_unique_trajectories(&args.trajectories)?;
         args.trajectories.clone()
     } else if let Some(ids) = &config.trajectories {
         ids.clone()
