@@ -7,7 +7,9 @@ use std::sync::Arc;
 
 use rlpkg_mocap::Trajectory;
 use rlpkg_replay::loss::{squared_distance, LossKind, LossWeights};
-use rlpkg_replay::{get_param, mean_loss, rollout, set_param, Candidate, ReplayError, Target};
+use rlpkg_replay::{
+    get_param, mean_loss, rollout, set_param, Candidate, Phase, ReplayError, Target,
+};
 use rlpkg_sim::{Model, SceneConfig};
 
 use crate::driver::{BatchObjective, CalibratedParams, CandidateResult};
@@ -190,6 +192,17 @@ pub struct Spread {
     pub max_m: f64,
     /// Largest distance between the two discs' centres in any frame (m).
     pub disc_max_m: f64,
+    /// Per phase of the motion present in the recordings ([`Phase::ALL`] order): the 90th
+    /// percentile over that phase's frames of the worst site's distance (m).
+    pub phase_p90_m: Vec<(Phase, f64)>,
+}
+
+/// The value at quantile `q` of sorted `values` (nearest rank); NaN when empty.
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
 /// The label of the candidate that nudges every parameter in [`SimObjective::spread`].
@@ -214,10 +227,12 @@ impl SimObjective {
         sets.push(values.iter().map(|v| v * (1.0 + nudge)).collect());
         labels.push(ALL_PARAMETERS.to_string());
 
-        /// Per nudged set: the worst site's distance in each frame, and the discs' largest.
+        /// Per nudged set: the worst site's distance and the phase of each frame, and the discs'
+        /// largest distance.
         struct Distances {
+            phases: Vec<Vec<Phase>>,
             unnudged: Vec<Option<(Vec<[f64; 3]>, [f64; 3])>>,
-            worst: Vec<Vec<f64>>,
+            worst: Vec<Vec<(Phase, f64)>>,
             disc: Vec<f64>,
         }
         impl Observer for Distances {
@@ -238,11 +253,12 @@ impl SimObjective {
                     .map(|(a, b)| squared_distance(a, b).sqrt())
                     .fold(0.0, f64::max);
                 let set = o.candidate - 1;
-                self.worst[set].push(worst);
+                self.worst[set].push((self.phases[o.target][o.frame], worst));
                 self.disc[set] = self.disc[set].max(squared_distance(&disc, base_disc).sqrt());
             }
         }
         let mut distances = Distances {
+            phases: self.targets.iter().map(|t| t.phases.clone()).collect(),
             unnudged: vec![None; self.targets.len()],
             worst: vec![Vec::new(); labels.len()],
             disc: vec![0.0; labels.len()],
@@ -252,20 +268,28 @@ impl SimObjective {
             .into_iter()
             .zip(distances.worst)
             .zip(distances.disc)
-            .map(|((parameter, mut worst), disc_max_m)| {
-                worst.sort_by(f64::total_cmp);
-                let quantile = |q: f64| {
-                    if worst.is_empty() {
-                        return f64::NAN;
-                    }
-                    worst[((worst.len() - 1) as f64 * q).round() as usize]
+            .map(|((parameter, frames), disc_max_m)| {
+                let sorted = |phase: Option<Phase>| {
+                    let mut d: Vec<f64> = frames
+                        .iter()
+                        .filter(|(p, _)| phase.is_none_or(|phase| *p == phase))
+                        .map(|(_, d)| *d)
+                        .collect();
+                    d.sort_by(f64::total_cmp);
+                    d
                 };
+                let all = sorted(None);
                 Spread {
                     parameter,
-                    median_m: quantile(0.5),
-                    p90_m: quantile(0.9),
-                    max_m: quantile(1.0),
+                    median_m: quantile(&all, 0.5),
+                    p90_m: quantile(&all, 0.9),
+                    max_m: quantile(&all, 1.0),
                     disc_max_m,
+                    phase_p90_m: Phase::ALL
+                        .into_iter()
+                        .filter(|&phase| frames.iter().any(|(p, _)| *p == phase))
+                        .map(|phase| (phase, quantile(&sorted(Some(phase)), 0.9)))
+                        .collect(),
                 }
             })
             .collect())
@@ -413,6 +437,12 @@ mod tests {
             let ratio = l.max_m / s.max_m;
             assert!((20.0..500.0).contains(&ratio), "{s:?} {l:?}");
             assert!(s.median_m <= s.p90_m && s.p90_m <= s.max_m);
+            // Every phase's frames are a subset of all frames.
+            assert!(!s.phase_p90_m.is_empty());
+            assert!(
+                s.phase_p90_m.iter().all(|(_, p90)| *p90 <= s.max_m),
+                "{s:?}"
+            );
         }
     }
 }

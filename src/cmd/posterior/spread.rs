@@ -69,6 +69,21 @@ pub fn run(args: &PosteriorArgs, config: CalibrateConfig, nudge: f64) -> anyhow:
     println!(
         "worst site per frame, over every frame of every recording: its median, 90th percentile and largest"
     );
+    if let Some(first) = spreads.first() {
+        println!();
+        print!("{:<16}", "p90 mm by phase");
+        for (phase, _) in &first.phase_p90_m {
+            print!(" {:>9}", phase.name());
+        }
+        println!();
+        for s in &spreads {
+            print!("{:<16}", s.parameter);
+            for (_, p90) in &s.phase_p90_m {
+                print!(" {:>9.4}", 1e3 * p90);
+            }
+            println!();
+        }
+    }
     if let Some(sigma) = noise.iter().copied().reduce(f64::max) {
         // A site's noise is sigma per axis: sqrt(3) sigma as a distance.
         let noise_m = 3f64.sqrt() * sigma;
