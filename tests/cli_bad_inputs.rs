@@ -64,6 +64,22 @@ fn shipped_config(dir: &Path, name: &str, from: &str, to: &str) {
     std::fs::write(dir.join(name), text.replace(from, to)).unwrap();
 }
 
+/// `dir/optimize.toml`: the shipped `configs/optimize/transport.toml` with its task found in the
+/// repository and `from` replaced by `to`.
+fn optimize_config(dir: &Path, from: &str, to: &str) {
+    let text = std::fs::read_to_string(repo().join("configs/optimize/transport.toml")).unwrap();
+    let task = repo().join("configs/train/transport.toml");
+    let text = text.replace(
+        "transport = \"configs/train/transport.toml\"",
+        &format!("transport = {:?}", task.to_str().unwrap()),
+    );
+    assert!(
+        text.contains(from) && text.contains(task.to_str().unwrap()),
+        "{from}"
+    );
+    std::fs::write(dir.join("optimize.toml"), text.replace(from, to)).unwrap();
+}
+
 /// `dir/calibrate.toml`: one batch of two on the first 0.05 s of HHHHH in the scene `preset`, into
 /// `out`.
 fn tiny_calibration(dir: &Path, preset: &str) {
@@ -641,6 +657,34 @@ fn cases() -> Vec<Case> {
                 "transport.randomization.package.posterior",
                 "posterior/samples.csv line 3 column 1",
                 "key `k_tri_e` = -2000",
+            ],
+        },
+        Case {
+            name: "resume given a new run name",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&["train", "--resume", &run, "--name", "other"])
+            },
+            expected: &["--name", "cannot be used with", "--resume"],
+        },
+        Case {
+            name: "optimize: a horizon of days",
+            setup: |dir| {
+                optimize_config(dir, "horizon_s = 3.5", "horizon_s = 1e6");
+                args(&["optimize", "optimize.toml"])
+            },
+            expected: &["optimize.toml", "knots.horizon_s = 1000000", "(0, 600]"],
+        },
+        Case {
+            name: "optimize: starting faster than the task allows",
+            setup: |dir| {
+                optimize_config(dir, "initial_speed_m_s = 0.5", "initial_speed_m_s = 100");
+                args(&["optimize", "optimize.toml"])
+            },
+            expected: &[
+                "optimize.toml",
+                "knots.initial_speed_m_s = 100",
+                "limits.max_path_speed_m_s",
             ],
         },
         Case {

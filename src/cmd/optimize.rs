@@ -194,8 +194,13 @@ impl OptimizeConfig {
         if !(2..=64).contains(&k.count) {
             return fail("knots.count", k.count.to_string(), "in [2, 64]");
         }
-        if !(k.horizon_s.is_finite() && k.horizon_s > 0.0) {
-            return fail("knots.horizon_s", k.horizon_s.to_string(), "> 0 (s)");
+        // Ten minutes is beyond any transport; a larger value is a typo, not a plan.
+        if !(k.horizon_s.is_finite() && k.horizon_s > 0.0 && k.horizon_s <= 600.0) {
+            return fail(
+                "knots.horizon_s",
+                k.horizon_s.to_string(),
+                "in (0, 600] (s)",
+            );
         }
         for (key, v) in [
             ("knots.initial_speed_m_s", k.initial_speed_m_s),
@@ -338,6 +343,16 @@ pub fn run(args: OptimizeArgs) -> anyhow::Result<()> {
         ))
     })?;
     let transport = TransportConfig::from_toml_str(&text, &source).map_err(input_error)?;
+    // The search's mean starts here; beyond the task's limit it would be clamped without a word.
+    let limit = transport.limits.max_path_speed_m_s;
+    if config.knots.initial_speed_m_s > limit {
+        return Err(input_error(format!(
+            "{}: knots.initial_speed_m_s = {}: expected at most the task's \
+             limits.max_path_speed_m_s = {limit} m/s ({source})",
+            args.config.display(),
+            config.knots.initial_speed_m_s
+        )));
+    }
     let _cooperation = crate::interrupt::Cooperation::start();
     if args.mpc {
         return run_mpc(&args, &config, transport, &source, &out);

@@ -39,10 +39,10 @@ pub struct TrainArgs {
     #[arg(long = "set", value_name = "KEY=VALUE", conflicts_with = "resume")]
     pub set: Vec<Override>,
     /// Run name; the run is written to <OUT_DIR>/<NAME> [default: the config file's stem].
-    #[arg(long, value_parser = parse_run_name)]
+    #[arg(long, value_parser = parse_run_name, conflicts_with = "resume")]
     pub name: Option<String>,
-    /// Folder that holds run folders.
-    #[arg(long, default_value = "runs")]
+    /// Folder that holds run folders (a resumed run stays in its own folder).
+    #[arg(long, default_value = "runs", conflicts_with = "resume")]
     pub out_dir: PathBuf,
     /// Stop after this many updates in total (continue later with --resume).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
