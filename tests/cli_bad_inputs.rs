@@ -942,6 +942,33 @@ fn cases() -> Vec<Case> {
             expected: &["--write-params /dev/null", "is a character device"],
         },
         Case {
+            name: "seal fit on a dataset without a failure take",
+            setup: |dir| {
+                std::fs::write(
+                    dir.join("seal.toml"),
+                    format!(
+                        "dataset = {:?}\nscene = {:?}\nout = \"out\"\nmax_seconds = 0.1\n\n\
+                         [grid]\nvacuum_kpa = {{ min = 20.0, max = 30.0, steps = 2 }}\n",
+                        repo()
+                            .join("data/deformable-sim-real")
+                            .display()
+                            .to_string(),
+                        repo()
+                            .join("configs/scenes/study.toml")
+                            .display()
+                            .to_string(),
+                    ),
+                )
+                .unwrap();
+                args(&["seal", "fit", "seal.toml"])
+            },
+            expected: &[
+                "manifest.toml",
+                "0 of 18 takes flagged",
+                "at least one failure take",
+            ],
+        },
+        Case {
             name: "seal fit into a file",
             setup: |dir| {
                 std::fs::write(

@@ -243,6 +243,18 @@ fn fit(args: FitArgs) -> anyhow::Result<()> {
     check_outputs(&args, &config)?;
     let scene = SceneConfig::load(&config.scene).map_err(input_error)?;
     let dataset = Dataset::open(&config.dataset).map_err(input_error)?;
+    // The capacity is where simulated failures agree with the flags, class by class: a dataset
+    // without both classes would be "fitted" at the grid's edge after replaying everything.
+    let flagged = dataset.entries.iter().filter(|e| e.failure).count();
+    if flagged == 0 || flagged == dataset.entries.len() {
+        return Err(input_error(format!(
+            "{}: {flagged} of {} takes flagged as failures (`failure` in manifest.toml); expected \
+             at least one failure take and one that held (the fit compares simulated failures \
+             with both)",
+            config.dataset.join("manifest.toml").display(),
+            dataset.entries.len()
+        )));
+    }
     let started = Instant::now();
     let mut takes = Vec::new();
     let mut targets = Vec::new();
