@@ -660,6 +660,18 @@ fn cases() -> Vec<Case> {
             ],
         },
         Case {
+            name: "tanh_scale on discrete actions",
+            setup: |dir| {
+                tiny_config(
+                    dir,
+                    "action_transform = \"clip\"",
+                    "action_transform = \"tanh_scale\"",
+                );
+                args(&["train", "tiny.toml"])
+            },
+            expected: &["tiny.toml", "policy.action_transform", "discrete actions"],
+        },
+        Case {
             name: "resume given a new run name",
             setup: |dir| {
                 let run = run_copy(dir);

@@ -10,12 +10,12 @@ use burn::tensor::{Device, Tensor, TensorData};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand_chacha::ChaCha8Rng;
 use rlpkg_vec_env::info::{InfoKind, SUCCESS};
-use rlpkg_vec_env::{EnvSpec, StepBuffers, VecEnv};
+use rlpkg_vec_env::{EnvSpec, SpaceKind, StepBuffers, VecEnv};
 
 use super::policy::{initial_actor_critic, model_rng};
 use super::tensorboard::{EventWriter, EventsPosition};
 use crate::algorithms::{PhaseTimes, Ppo, UpdateStats};
-use crate::config::{config_hash, TrainConfig};
+use crate::config::{config_hash, TrainConfig, TransformName};
 use crate::export::{ActionTransform, ObsNormaliser};
 use crate::modules::distributions::{
     categorical_log_prob_entropy, gaussian_log_prob, one_hot, sample_categorical, sample_gaussian,
@@ -138,6 +138,20 @@ impl Trainer {
         }
         let device = backend.device();
         let spec = env.spec().clone();
+        if matches!(spec.action.kind, SpaceKind::Discrete { .. })
+            && config.policy.action_transform != TransformName::Clip
+        {
+            // A discrete action has no bounds to map a Gaussian sample to.
+            return Err(AgentError::ConfigValue {
+                path: config.source.clone().into(),
+                key: "policy.action_transform".into(),
+                value: "\"tanh_scale\"".into(),
+                expected: format!(
+                    "\"clip\" (the default, no effect) for {}'s discrete actions",
+                    spec.id
+                ),
+            });
+        }
         let mut buffers = env.buffers();
         env.reset(config.run.seed, &mut buffers)?;
         let mut rng = model_rng(config.run.seed);
