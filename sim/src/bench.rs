@@ -37,14 +37,13 @@ pub struct BenchRow {
     pub wall_s: f64,
     /// Batch substeps per second (every environment advanced by one substep).
     pub substeps_per_s: f64,
-    /// Particle-substeps per second over the whole batch.
+    /// Particle-substeps per second actually simulated: over the environments that advanced (a
+    /// frozen or retired one costs nothing and counts nothing).
     pub particle_substeps_per_s: f64,
-    /// Simulated seconds per wall second, per environment.
+    /// Simulated seconds per wall second of the batch's clock (one environment's view).
     pub real_time_factor_per_env: f64,
-    /// Simulated seconds per wall second summed over environments.
-    pub real_time_factor_total: f64,
     /// Simulated seconds per wall second actually advanced, summed over the environments' own
-    /// clocks: below `real_time_factor_total` when environments froze (they then cost nothing).
+    /// clocks (a frozen environment's clock stands still).
     pub simulated_s_per_wall_s: f64,
     /// Environments frozen by a health check (or retired) at the end of the measurement.
     pub frozen_envs: usize,
@@ -171,6 +170,7 @@ pub fn measure(
     let particles = sim.model().num_particles();
     let substeps_per_s = substeps as f64 / wall_s;
     let rtf = substeps_per_s * sim.dt() as f64;
+    let simulated_s = (clocks_after - clocks_before) as f64 * sim.dt() as f64 / wall_s;
     let (issued, clamped) = commands.map_or((0, 0), |c| (c.issued, c.clamped));
     Ok(BenchRow {
         workload: workload.to_string(),
@@ -180,10 +180,11 @@ pub fn measure(
         substeps,
         wall_s,
         substeps_per_s,
-        particle_substeps_per_s: substeps_per_s * (particles * envs) as f64,
+        // Only live environments advance their clocks: a frozen or retired one costs nothing
+        // and must not count as work done.
+        particle_substeps_per_s: (clocks_after - clocks_before) as f64 * particles as f64 / wall_s,
         real_time_factor_per_env: rtf,
-        real_time_factor_total: rtf * envs as f64,
-        simulated_s_per_wall_s: (clocks_after - clocks_before) as f64 * sim.dt() as f64 / wall_s,
+        simulated_s_per_wall_s: simulated_s,
         frozen_envs: (0..envs).filter(|&e| sim.is_frozen(e)).count(),
         commands: issued,
         clamped_commands: clamped,
@@ -307,7 +308,7 @@ impl TwistCommands {
 /// The rows as a plain-text table.
 pub fn format_table(rows: &[BenchRow]) -> String {
     let mut out = format!(
-        "{:<10} {:>7} {:>9} {:>6} {:>10} {:>14} {:>10} {:>10} {:>11} {:>6} {:>10} {:>10}\n",
+        "{:<10} {:>7} {:>9} {:>6} {:>10} {:>14} {:>10} {:>11} {:>6} {:>10} {:>10}\n",
         "workload",
         "grid",
         "particles",
@@ -315,7 +316,6 @@ pub fn format_table(rows: &[BenchRow]) -> String {
         "substeps/s",
         "particle-ss/s",
         "RTF/env",
-        "RTF total",
         "sim-s/wall",
         "frozen",
         "state MB",
@@ -323,7 +323,7 @@ pub fn format_table(rows: &[BenchRow]) -> String {
     );
     for r in rows {
         out += &format!(
-            "{:<10} {:>7} {:>9} {:>6} {:>10.0} {:>12.2} M {:>10.4} {:>10.3} {:>11.3} {:>6} {:>10.1} {:>10}\n",
+            "{:<10} {:>7} {:>9} {:>6} {:>10.0} {:>12.2} M {:>10.4} {:>11.3} {:>6} {:>10.1} {:>10}\n",
             r.workload,
             format!("{}x{}", r.grid[0], r.grid[1]),
             r.particles,
@@ -331,7 +331,6 @@ pub fn format_table(rows: &[BenchRow]) -> String {
             r.substeps_per_s,
             r.particle_substeps_per_s / 1e6,
             r.real_time_factor_per_env,
-            r.real_time_factor_total,
             r.simulated_s_per_wall_s,
             r.frozen_envs,
             r.state_bytes as f64 / 1e6,
@@ -357,7 +356,7 @@ mod tests {
         assert_eq!(row.workload, "motionless");
         // Nothing froze: every environment's clock advanced by every substep.
         assert_eq!(row.frozen_envs, 0);
-        let total = row.real_time_factor_total;
+        let total = row.real_time_factor_per_env * row.envs as f64;
         assert!((row.simulated_s_per_wall_s - total).abs() <= 1e-9 * total);
         assert_eq!((row.commands, row.clamped_commands), (0, 0));
         let table = format_table(&[row]);
@@ -418,5 +417,27 @@ mod tests {
         assert_ne!(tools[0].position, tools[1].position);
         assert_eq!(tools, run(5));
         assert_ne!(tools, run(6));
+    }
+
+    #[test]
+    fn frozen_environments_count_no_work() {
+        let config = SceneConfig::preset("reference").unwrap();
+        let mut sim = bench_simulator(&config, [6, 7], 4).unwrap();
+        for env in 1..4 {
+            sim.retire(env).unwrap();
+        }
+        let row = measure("motionless", &mut sim, 0.0, None).unwrap();
+        assert_eq!(row.frozen_envs, 3);
+        // One live environment: the batch's clock, once.
+        let one = row.substeps_per_s * row.particles as f64;
+        assert!(
+            (row.particle_substeps_per_s - one).abs() <= 1e-6 * one,
+            "{row:?}"
+        );
+        let rtf = row.real_time_factor_per_env;
+        assert!(
+            (row.simulated_s_per_wall_s - rtf).abs() <= 1e-9 * rtf,
+            "{row:?}"
+        );
     }
 }
