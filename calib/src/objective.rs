@@ -227,11 +227,13 @@ impl SimObjective {
         sets.push(values.iter().map(|v| v * (1.0 + nudge)).collect());
         labels.push(ALL_PARAMETERS.to_string());
 
+        /// The unnudged replay's sites and disc centre in the frame being observed.
+        type Unnudged = (Vec<[f64; 3]>, [f64; 3]);
         /// Per nudged set: the worst site's distance and the phase of each frame, and the discs'
         /// largest distance.
         struct Distances {
             phases: Vec<Vec<Phase>>,
-            unnudged: Vec<Option<(Vec<[f64; 3]>, [f64; 3])>>,
+            unnudged: Vec<Option<Unnudged>>,
             worst: Vec<Vec<(Phase, f64)>>,
             disc: Vec<f64>,
         }
