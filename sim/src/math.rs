@@ -141,7 +141,7 @@ impl Real for f64 {
 pub struct Lanes<const W: usize>(pub [f32; W]);
 
 /// `Lanes([f(0), f(1), …, f(W − 1)])`, written out without a loop for the widths the simulator
-/// uses (1, 4 and 8). Every arithmetic operation is inlined into the solvers' substeps, thousands
+/// uses (1, 4, 8 and 16). Every arithmetic operation is inlined into the solvers' substeps, thousands
 /// of them per substep: written as loops, each would be one more loop for LLVM's loop passes to
 /// visit across the whole function, and compiling the simulator would take most of an hour.
 #[inline(always)]
@@ -157,6 +157,7 @@ fn lanewise<const W: usize>(f: impl Fn(usize) -> f32) -> Lanes<W> {
         1 => written_out!(0),
         4 => written_out!(0 1 2 3),
         8 => written_out!(0 1 2 3 4 5 6 7),
+        16 => written_out!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15),
         _ => Lanes(std::array::from_fn(f)),
     }
 }

@@ -200,7 +200,7 @@ fn triangle_forces<const W: usize>(
     }
     for tri in tris {
         let [a, b, c] = tri.idx.map(|i| i as usize);
-        let dm = tri.rest.dm.map(|row| row.map(L::splat));
+        let dm = tri.rest.dm_splat();
         let inv_area = L::splat(tri.rest.inv_rest_area());
         let fs = forces::triangle(
             [x[a], x[b], x[c]],
