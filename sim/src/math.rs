@@ -214,6 +214,16 @@ impl<const W: usize> Real for Lanes<W> {
     }
 }
 
+/// A vector of lane values whose buffer starts on a 64-byte cache line, so that no 16-lane value
+/// (one line) or 8-lane value (half a line) straddles two: from the allocator's 16-byte alignment
+/// most of them did, and a load or store split across two lines costs two.
+pub(crate) type LaneVec<T> = aligned_vec::AVec<T, aligned_vec::ConstAlign<64>>;
+
+/// `n` copies of `value` in a [`LaneVec`].
+pub(crate) fn lane_vec<T: Clone>(value: T, n: usize) -> LaneVec<T> {
+    LaneVec::from_iter(64, std::iter::repeat_n(value, n))
+}
+
 /// A 3-vector of [`Real`]s.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct V3<T> {

@@ -23,7 +23,7 @@ mod tests;
 mod vertex;
 
 use crate::forces::{self, ContactMaterial};
-use crate::math::{get3, set3, Lanes, Quat, Real, Sym3, V3};
+use crate::math::{get3, lane_vec, set3, LaneVec, Lanes, Quat, Real, Sym3, V3};
 use crate::model::Model;
 use crate::state::{LaneParams, State};
 
@@ -40,27 +40,27 @@ pub(crate) struct BlockDescent<const W: usize> {
     /// Chebyshev acceleration's spectral radius estimate (0: off).
     chebyshev_rho: f32,
     /// Package positions at the start of the substep and their inertial predictions.
-    x_start: Vec<V3<L<W>>>,
-    inertia_target: Vec<V3<L<W>>>,
+    x_start: LaneVec<V3<L<W>>>,
+    inertia_target: LaneVec<V3<L<W>>>,
     /// The step velocity `(x − x_start) / h` of each package vertex's current iterate, kept with
     /// `x` (every element around a vertex reads it).
-    x_rate: Vec<V3<L<W>>>,
+    x_rate: LaneVec<V3<L<W>>>,
     /// Attachment springs per package vertex (`spring_slot_starts[i]..spring_slot_starts[i + 1]`
     /// of `spring_slots`), the counts per vertex and lane that index them, and the particles near
     /// the disc this substep.
     spring_slot_starts: Vec<u32>,
-    spring_slots: Vec<SpringSlot<W>>,
+    spring_slots: LaneVec<SpringSlot<W>>,
     spring_counts: Vec<[u32; W]>,
     disc_candidates: Vec<u32>,
     /// Whether each package particle is among `disc_candidates`.
     near_disc: Vec<bool>,
     /// With Chebyshev acceleration only: package positions before the current sweep and before
     /// the previous one.
-    x_before: Vec<V3<L<W>>>,
-    x_older: Vec<V3<L<W>>>,
+    x_before: LaneVec<V3<L<W>>>,
+    x_older: LaneVec<V3<L<W>>>,
     /// Bending force and stiffness per package vertex at a sweep's start.
-    bend_force: Vec<V3<L<W>>>,
-    bend_stiffness: Vec<Sym3<L<W>>>,
+    bend_force: LaneVec<V3<L<W>>>,
+    bend_stiffness: LaneVec<Sym3<L<W>>>,
 }
 
 /// One attachment spring slot of a package vertex, per lane: the cup particle it pulls towards
@@ -304,18 +304,18 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
         BlockDescent {
             iterations: c.iterations,
             chebyshev_rho: c.chebyshev_rho,
-            x_start: vec![zero3; n],
-            inertia_target: vec![zero3; n],
-            x_rate: vec![zero3; n],
+            x_start: lane_vec(zero3, n),
+            inertia_target: lane_vec(zero3, n),
+            x_rate: lane_vec(zero3, n),
             spring_slot_starts: Vec::new(),
-            spring_slots: Vec::new(),
+            spring_slots: LaneVec::new(64),
             spring_counts: Vec::new(),
             disc_candidates: Vec::new(),
             near_disc: Vec::new(),
-            x_before: vec![zero3; chebyshev],
-            x_older: vec![zero3; chebyshev],
-            bend_force: vec![zero3; n],
-            bend_stiffness: vec![Sym3::zero(); n],
+            x_before: lane_vec(zero3, chebyshev),
+            x_older: lane_vec(zero3, chebyshev),
+            bend_force: lane_vec(zero3, n),
+            bend_stiffness: lane_vec(Sym3::zero(), n),
         }
     }
 

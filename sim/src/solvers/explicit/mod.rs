@@ -10,7 +10,7 @@
 mod assembly;
 
 use crate::config::DriveMode;
-use crate::math::{Lanes, Quat, Real, V3};
+use crate::math::{lane_vec, LaneVec, Lanes, Quat, Real, V3};
 use crate::model::Model;
 use crate::state::{LaneDisc, State, ToolLanes};
 
@@ -33,8 +33,8 @@ pub(crate) struct SemiImplicitEuler<const W: usize> {
     /// Substeps between regenerations of the frozen disc contact data.
     contact_refresh: u64,
     /// Forces of the membrane half and of the contact half of the evaluation.
-    f: Vec<V3<L<W>>>,
-    f2: Vec<V3<L<W>>>,
+    f: LaneVec<V3<L<W>>>,
+    f2: LaneVec<V3<L<W>>>,
 }
 
 impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
@@ -46,8 +46,8 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
             kp: c.cups.servo_kp,
             kff: c.cups.servo_kff,
             contact_refresh: c.disc.contact_refresh_substeps as u64,
-            f: vec![V3::zero(); n],
-            f2: vec![V3::zero(); n],
+            f: lane_vec(V3::zero(), n),
+            f2: lane_vec(V3::zero(), n),
         }
     }
 

@@ -7,7 +7,7 @@
 //! factor one matrix of `f64`/`f32` at a time, while here the `W` environments of a block are
 //! factored together in SIMD lanes (the factor costs `n·b²/2` lane operations, a solve `2·n·b`).
 
-use crate::math::{Lanes, Real, V3};
+use crate::math::{lane_vec, LaneVec, Lanes, Real, V3};
 
 type L<const W: usize> = Lanes<W>;
 
@@ -18,10 +18,10 @@ pub(crate) struct Banded<const W: usize> {
     b: usize,
     /// Row `i` holds `(i, i − b ..= i)` at `i·(b + 1) ..`; entries before column 0 stay 0. After
     /// factoring: the factor `L` below the diagonal and `1 / L_ii` on it.
-    entries: Vec<L<W>>,
+    entries: LaneVec<L<W>>,
     /// The factor again by columns: column `j` holds `(j ..= j + b, j)` at `j·(b + 1) ..` (`1 / L_jj`
     /// first), so the backward solve reads it in order instead of one band row apart per entry.
-    columns: Vec<L<W>>,
+    columns: LaneVec<L<W>>,
 }
 
 impl<const W: usize> Banded<W> {
@@ -30,8 +30,8 @@ impl<const W: usize> Banded<W> {
         Banded {
             n,
             b,
-            entries: vec![L::splat(0.0); n * (b + 1)],
-            columns: vec![L::splat(0.0); n * (b + 1)],
+            entries: lane_vec(L::splat(0.0), n * (b + 1)),
+            columns: lane_vec(L::splat(0.0), n * (b + 1)),
         }
     }
 
