@@ -71,6 +71,17 @@ impl TriangleRest {
     pub fn inv_rest_area(&self) -> f32 {
         (self.dm[0][0] * self.dm[1][1] - self.dm[0][1] * self.dm[1][0]) * 2.0
     }
+
+    /// `Dm` in every lane of `T`. Written out: `dm.map(|row| row.map(T::splat))` is compiled as a
+    /// call, outside the substep's instruction set.
+    #[inline(always)]
+    pub fn dm_splat<T: Real>(&self) -> [[T; 2]; 2] {
+        let dm = &self.dm;
+        [
+            [T::splat(dm[0][0]), T::splat(dm[0][1])],
+            [T::splat(dm[1][0]), T::splat(dm[1][1])],
+        ]
+    }
 }
 
 /// Membrane triangle (`eval_triangles`): Warp's St.Venant-Kirchhoff-like deviatoric term plus an

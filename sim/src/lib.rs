@@ -12,7 +12,8 @@
 //!   an environment reports ([`DiscState`], [`EnvObservation`], [`CupLoad`], events).
 //! * The state (`state`): positions/velocities of every particle, the disc's pose and twist, the
 //!   cups' seals and each environment's clock, struct-of-arrays in blocks of [`LANES`]
-//!   environments, plus what each lane's episode prescribes (parameters, tool drive).
+//!   environments (16 where the CPU has AVX-512 and the batch fills two such blocks), plus what
+//!   each lane's episode prescribes (parameters, tool drive).
 //! * The force laws ([`forces`]): one function per force term, one element at a time, shared by
 //!   the solvers.
 //! * The solvers (`solvers`, one folder each, behind one interface; the scene's

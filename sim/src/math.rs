@@ -141,7 +141,7 @@ impl Real for f64 {
 pub struct Lanes<const W: usize>(pub [f32; W]);
 
 /// `Lanes([f(0), f(1), …, f(W − 1)])`, written out without a loop for the widths the simulator
-/// uses (1, 4 and 8). Every arithmetic operation is inlined into the solvers' substeps, thousands
+/// uses (1, 4, 8 and 16). Every arithmetic operation is inlined into the solvers' substeps, thousands
 /// of them per substep: written as loops, each would be one more loop for LLVM's loop passes to
 /// visit across the whole function, and compiling the simulator would take most of an hour.
 #[inline(always)]
@@ -157,6 +157,7 @@ fn lanewise<const W: usize>(f: impl Fn(usize) -> f32) -> Lanes<W> {
         1 => written_out!(0),
         4 => written_out!(0 1 2 3),
         8 => written_out!(0 1 2 3 4 5 6 7),
+        16 => written_out!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15),
         _ => Lanes(std::array::from_fn(f)),
     }
 }
@@ -211,6 +212,16 @@ impl<const W: usize> Real for Lanes<W> {
     fn select_lt(a: Self, b: Self, yes: Self, no: Self) -> Self {
         lanewise(|l| if a.0[l] < b.0[l] { yes.0[l] } else { no.0[l] })
     }
+}
+
+/// A vector of lane values whose buffer starts on a 64-byte cache line, so that no 16-lane value
+/// (one line) or 8-lane value (half a line) straddles two: from the allocator's 16-byte alignment
+/// most of them did, and a load or store split across two lines costs two.
+pub(crate) type LaneVec<T> = aligned_vec::AVec<T, aligned_vec::ConstAlign<64>>;
+
+/// `n` copies of `value` in a [`LaneVec`].
+pub(crate) fn lane_vec<T: Clone>(value: T, n: usize) -> LaneVec<T> {
+    LaneVec::from_iter(64, std::iter::repeat_n(value, n))
 }
 
 /// A 3-vector of [`Real`]s.

@@ -14,15 +14,19 @@ use crate::model::Model;
 use crate::tool::{plan, ToolCommand, ToolCommandReport, ToolDrive, ToolState};
 use crate::trajectory::ToolTrajectory;
 
+use crate::solvers::{Simd, AVX512_LANES};
 use block::EnvBlock;
 
-/// Environments per block in batches (8 f32 lanes = one AVX2 register).
+/// Environments per block in batches on CPUs without AVX-512 (8 f32 lanes = one AVX2 register),
+/// and in batches too small to fill two blocks of [`AVX512_LANES`].
 pub const LANES: usize = 8;
 
-/// Blocks of the batch. A batch of one environment uses 1-lane blocks so no lane is wasted; the
-/// arithmetic per lane is the same, so results are bit-identical either way.
+/// Blocks of the batch. A batch of one environment uses 1-lane blocks so no lane is wasted; where
+/// the CPU has AVX-512, a batch of at least two 16-lane blocks uses 16-lane blocks (one register
+/// per value). The arithmetic per lane is the same, so results are bit-identical either way.
 enum Blocks {
     Wide(Vec<EnvBlock<LANES>>),
+    Wide16(Vec<EnvBlock<AVX512_LANES>>),
     Single(Vec<EnvBlock<1>>),
 }
 
@@ -43,6 +47,12 @@ macro_rules! with_lane {
                 let $l = $env % LANES;
                 $body
             }
+            Blocks::Wide16(blocks) => {
+                let lanes = $crate::solvers::AVX512_LANES;
+                let $b = &blocks[$env / lanes];
+                let $l = $env % lanes;
+                $body
+            }
             Blocks::Single(blocks) => {
                 let $b = &blocks[$env];
                 let $l = 0;
@@ -60,6 +70,10 @@ macro_rules! with_block_mut {
         match &mut $self.blocks {
             Blocks::Wide(blocks) => {
                 let $b = &mut blocks[env / LANES];
+                $body
+            }
+            Blocks::Wide16(blocks) => {
+                let $b = &mut blocks[env / $crate::solvers::AVX512_LANES];
                 $body
             }
             Blocks::Single(blocks) => {
@@ -88,6 +102,8 @@ pub struct Simulator {
     constants: StepConstants,
     limits: ToolLimits,
     substep: u64,
+    /// The instruction set the solvers use (the CPU's widest, or lower in tests).
+    simd: Simd,
     events: Vec<HealthEvent>,
     seal_events: Vec<SealEvent>,
 }
@@ -104,21 +120,27 @@ fn lane_envs<const W: usize>(block: usize, num_envs: usize) -> ([usize; W], [boo
     (envs, real)
 }
 
-/// Lays environments out in blocks: 1-lane blocks for a single environment, else LANES-wide.
-fn build_blocks(model: &Model, specs: &[EpisodeSpec]) -> Blocks {
+/// The blocks of `n` environments, `W` lanes each.
+fn wide_blocks<const W: usize>(model: &Model, specs: &[EpisodeSpec]) -> Vec<EnvBlock<W>> {
+    let n = specs.len();
+    (0..n.div_ceil(W))
+        .into_par_iter()
+        .map(|b| {
+            let (envs, real) = lane_envs::<W>(b, n);
+            EnvBlock::new(model, specs, envs, real)
+        })
+        .collect()
+}
+
+/// Lays environments out in blocks (see [`Blocks`]) for the instruction set `simd`.
+fn build_blocks(model: &Model, specs: &[EpisodeSpec], simd: Simd) -> Blocks {
     let n = specs.len();
     if n == 1 {
         Blocks::Single(vec![EnvBlock::new(model, specs, [0], [true])])
+    } else if simd == Simd::Avx512 && n >= 2 * AVX512_LANES {
+        Blocks::Wide16(wide_blocks(model, specs))
     } else {
-        Blocks::Wide(
-            (0..n.div_ceil(LANES))
-                .into_par_iter()
-                .map(|b| {
-                    let (envs, real) = lane_envs::<LANES>(b, n);
-                    EnvBlock::new(model, specs, envs, real)
-                })
-                .collect(),
-        )
+        Blocks::Wide(wide_blocks(model, specs))
     }
 }
 
@@ -172,6 +194,17 @@ fn validate_spec(env: usize, spec: &EpisodeSpec) -> Result<(), SimError> {
 impl Simulator {
     /// Builds the batch: one environment per spec, all at rest at time 0.
     pub fn new(model: Arc<Model>, specs: Vec<EpisodeSpec>) -> Result<Self, SimError> {
+        Self::with_simd(model, specs, Simd::detect())
+    }
+
+    /// [`Simulator::new`] with the solvers limited to the instruction set `simd` (tests compare
+    /// the bits of every one the CPU has).
+    pub(crate) fn with_simd(
+        model: Arc<Model>,
+        specs: Vec<EpisodeSpec>,
+        simd: Simd,
+    ) -> Result<Self, SimError> {
+        let simd = simd.min(Simd::detect());
         if specs.is_empty() {
             return Err(SimError::Env {
                 env: 0,
@@ -181,7 +214,7 @@ impl Simulator {
         for (env, spec) in specs.iter().enumerate() {
             validate_spec(env, spec)?;
         }
-        let blocks = build_blocks(&model, &specs);
+        let blocks = build_blocks(&model, &specs, simd);
         let mut sim = Simulator {
             constants: StepConstants::new(&model),
             limits: model.config.tool_limits.clone(),
@@ -189,6 +222,7 @@ impl Simulator {
             specs,
             blocks,
             substep: 0,
+            simd,
             events: Vec::new(),
             seal_events: Vec::new(),
         };
@@ -199,7 +233,7 @@ impl Simulator {
     /// Puts every environment back to its initial state (time 0, health flags cleared), keeping
     /// the current parameters and trajectories.
     pub fn reset(&mut self) {
-        self.blocks = build_blocks(&self.model, &self.specs);
+        self.blocks = build_blocks(&self.model, &self.specs, self.simd);
         self.substep = 0;
         self.events.clear();
         self.seal_events.clear();
@@ -300,6 +334,7 @@ impl Simulator {
         let (mut health, mut seal) = (Vec::new(), Vec::new());
         match &mut self.blocks {
             Blocks::Wide(blocks) => drain(blocks, &mut health, &mut seal),
+            Blocks::Wide16(blocks) => drain(blocks, &mut health, &mut seal),
             Blocks::Single(blocks) => drain(blocks, &mut health, &mut seal),
         }
         health.sort_by(|a, b| a.time.total_cmp(&b.time).then(a.env.cmp(&b.env)));
@@ -313,14 +348,17 @@ impl Simulator {
     /// over blocks of environments; frozen and retired environments stay as they are and cost
     /// nothing once their whole block is).
     pub fn step(&mut self, substeps: u64) {
-        let (model, k) = (&*self.model, &self.constants);
+        let (model, k, simd) = (&*self.model, &self.constants, self.simd);
         match &mut self.blocks {
             Blocks::Wide(blocks) => blocks
                 .par_iter_mut()
-                .for_each(|b| b.advance(model, k, substeps, false)),
+                .for_each(|b| b.advance(model, k, substeps, false, simd)),
+            Blocks::Wide16(blocks) => blocks
+                .par_iter_mut()
+                .for_each(|b| b.advance(model, k, substeps, false, simd)),
             Blocks::Single(blocks) => blocks
                 .iter_mut()
-                .for_each(|b| b.advance(model, k, substeps, true)),
+                .for_each(|b| b.advance(model, k, substeps, true, simd)),
         }
         self.substep += substeps;
         self.collect_events();
@@ -334,6 +372,7 @@ impl Simulator {
         self.check_env(env)?;
         match &mut self.blocks {
             Blocks::Wide(blocks) => blocks[env / LANES].retire(env),
+            Blocks::Wide16(blocks) => blocks[env / AVX512_LANES].retire(env),
             Blocks::Single(blocks) => blocks[env].retire(env),
         }
         Ok(())
@@ -352,6 +391,7 @@ impl Simulator {
         let (model, spec) = (&*self.model, &self.specs[env]);
         match &mut self.blocks {
             Blocks::Wide(blocks) => blocks[env / LANES].set_params(env, model, spec),
+            Blocks::Wide16(blocks) => blocks[env / AVX512_LANES].set_params(env, model, spec),
             Blocks::Single(blocks) => blocks[env].set_params(env, model, spec),
         }
         Ok(())
@@ -367,6 +407,7 @@ impl Simulator {
         self.check_env(env)?;
         match &mut self.blocks {
             Blocks::Wide(blocks) => blocks[env / LANES].set_trajectory(env, &trajectory),
+            Blocks::Wide16(blocks) => blocks[env / AVX512_LANES].set_trajectory(env, &trajectory),
             Blocks::Single(blocks) => blocks[env].set_trajectory(env, &trajectory),
         }
         self.specs[env].trajectory = trajectory;
@@ -438,6 +479,7 @@ impl Simulator {
         }
         match &mut self.blocks {
             Blocks::Wide(blocks) => write(&mut blocks[env / LANES], env, velocities),
+            Blocks::Wide16(blocks) => write(&mut blocks[env / AVX512_LANES], env, velocities),
             Blocks::Single(blocks) => write(&mut blocks[env], env, velocities),
         }
         Ok(())

@@ -243,7 +243,18 @@ impl Simulator {
     pub fn state_bytes(&self) -> usize {
         match &self.blocks {
             Blocks::Wide(blocks) => blocks.iter().map(|b| b.bytes()).sum(),
+            Blocks::Wide16(blocks) => blocks.iter().map(|b| b.bytes()).sum(),
             Blocks::Single(blocks) => blocks.iter().map(|b| b.bytes()).sum(),
+        }
+    }
+
+    /// Environments per block (1, [`LANES`] or 16, see `Blocks`).
+    #[cfg(test)]
+    pub(crate) fn lanes_per_block(&self) -> usize {
+        match &self.blocks {
+            Blocks::Wide(_) => LANES,
+            Blocks::Wide16(_) => crate::solvers::AVX512_LANES,
+            Blocks::Single(_) => 1,
         }
     }
 

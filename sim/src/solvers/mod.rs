@@ -28,9 +28,12 @@ pub(crate) mod across_elements;
 pub(crate) mod block_descent;
 pub(crate) mod explicit;
 pub(crate) mod global_descent;
+#[cfg(test)]
+mod tests;
 
 use crate::config::Solver;
 use crate::constants::StepConstants;
+use crate::math::{Lanes, Real, V3};
 use crate::model::Model;
 use crate::state::{LaneSetup, State, ToolLanes};
 
@@ -50,7 +53,24 @@ pub(crate) struct Substep<'a, const W: usize> {
     /// Whether the solver may split the block's work over two threads: a single-environment
     /// batch has one block, and the other cores would idle.
     pub(crate) parallel: bool,
+    /// The widest instruction set the substep may use (see `substep_entry`).
+    pub(crate) simd: Simd,
 }
+
+/// `new` in the active lanes of a block (`active` 1), `old` in the frozen ones (0). A function, not
+/// a closure in each substep: a closure is compiled on its own, without the substep's instruction
+/// set, and at 16 lanes LLVM stops inlining it.
+#[inline(always)]
+pub(crate) fn keep<const W: usize>(
+    active: Lanes<W>,
+    new: V3<Lanes<W>>,
+    old: V3<Lanes<W>>,
+) -> V3<Lanes<W>> {
+    V3::select_lt(Lanes::splat(0.5), active, new, old)
+}
+
+/// Lanes of a block in batches where the CPU has AVX-512: one 16-lane register per value.
+pub(crate) const AVX512_LANES: usize = 16;
 
 /// A solver: maps the state of a block's lanes to the next substep, in place.
 pub(crate) trait Integrator<const W: usize> {
@@ -103,10 +123,43 @@ impl<const W: usize> Integrator<W> for AnySolver<W> {
     }
 }
 
-/// Gives a solver `substep_entry`: its substep compiled for AVX2 when the CPU has it (same IEEE
-/// results, wider SIMD), else for the baseline. Each solver's substep is a function of its own,
-/// never inlined into the block's loop: with all three inlined into one function, LLVM takes most
-/// of an hour to optimise the crate (its loop passes scale with the function's size).
+/// The instruction sets the solvers' substeps are compiled for, in order: each substep is the
+/// same IEEE arithmetic on every one (no fused multiply-add, see below), only wider.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub(crate) enum Simd {
+    /// The target's baseline (SSE2 on x86-64).
+    Baseline,
+    /// AVX2: 8 f32 lanes in a register.
+    Avx2,
+    /// AVX-512 (foundation): 16 f32 lanes in a register.
+    Avx512,
+}
+
+impl Simd {
+    /// The widest instruction set this CPU has.
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                return Simd::Avx512;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Simd::Avx2;
+            }
+        }
+        Simd::Baseline
+    }
+}
+
+/// Gives a solver `substep_entry`: its substep compiled for the widest instruction set the CPU
+/// has, up to `step.simd`. Blocks of [`AVX512_LANES`] lanes, which only CPUs with AVX-512 get,
+/// run the AVX-512 copy alone; narrower blocks the AVX2 copy, else the baseline. AVX-512 implies
+/// FMA in `target_feature`, but LLVM only fuses a multiply and an add that carry a contraction
+/// flag, which Rust never emits: the copies differ in register width, not in results
+/// (`solvers/tests.rs` compares their bits). `if const` keeps the copies a width never runs out of
+/// the build. Each solver's substep is a function of its own, never inlined into the block's
+/// loop: with all three inlined into one function, LLVM takes most of an hour to optimise the
+/// crate (its loop passes scale with the function's size).
 macro_rules! substep_entry {
     ($solver:ident) => {
         impl<const W: usize> $solver<W> {
@@ -114,7 +167,17 @@ macro_rules! substep_entry {
             fn substep_entry(&mut self, step: &Substep<'_, W>, state: &mut State<W>) {
                 #[cfg(target_arch = "x86_64")]
                 {
-                    if std::arch::is_x86_feature_detected!("avx2") {
+                    if const { W == AVX512_LANES } {
+                        assert!(
+                            step.simd == Simd::Avx512
+                                && std::arch::is_x86_feature_detected!("avx512f"),
+                            "{AVX512_LANES}-lane blocks are built only where the CPU has AVX-512"
+                        );
+                        // SAFETY: the CPU supports AVX-512F, checked just above.
+                        unsafe { self.substep_avx512(step, state) };
+                        return;
+                    }
+                    if step.simd >= Simd::Avx2 && std::arch::is_x86_feature_detected!("avx2") {
                         // SAFETY: the CPU supports AVX2, checked just above.
                         unsafe { self.substep_avx2(step, state) };
                         return;
@@ -126,6 +189,12 @@ macro_rules! substep_entry {
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2")]
             unsafe fn substep_avx2(&mut self, step: &Substep<'_, W>, state: &mut State<W>) {
+                self.substep(step, state);
+            }
+
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx512f")]
+            unsafe fn substep_avx512(&mut self, step: &Substep<'_, W>, state: &mut State<W>) {
                 self.substep(step, state);
             }
         }

@@ -14,7 +14,7 @@ mod setup;
 
 pub(crate) use setup::{LaneParams, LaneSetup, ToolLanes};
 
-use crate::math::{Lanes, Quat, Real, V3};
+use crate::math::{lane_vec, LaneVec, Lanes, Quat, Real, V3};
 use crate::model::Model;
 
 type L<const W: usize> = Lanes<W>;
@@ -53,20 +53,20 @@ pub(crate) struct LaneDisc<const W: usize> {
 /// What evolves in the W lanes of a block. A solver maps it to the next substep in place.
 pub(crate) struct State<const W: usize> {
     /// Particle positions (package, then cups).
-    pub(crate) x: Vec<V3<L<W>>>,
+    pub(crate) x: LaneVec<V3<L<W>>>,
     /// Particle velocities.
-    pub(crate) v: Vec<V3<L<W>>>,
+    pub(crate) v: LaneVec<V3<L<W>>>,
     pub(crate) disc: LaneDisc<W>,
     /// Per cup particle: its attachment spring (target vertex, rest length, seal).
     pub(crate) springs: Vec<LaneSpring<W>>,
     /// Per spring: its force on the cup particle in the last substep (what the seal model
     /// filters; written by the solver like Warp's force buffers).
-    pub(crate) spring_force: Vec<V3<L<W>>>,
+    pub(crate) spring_force: LaneVec<V3<L<W>>>,
     /// Per cup: whether it holds the film and its filtered load.
     pub(crate) cups: Vec<LaneCup<W>>,
     /// Per particle: frozen contact point on the disc (body frame) and normal (world).
-    pub(crate) contact_point: Vec<V3<L<W>>>,
-    pub(crate) contact_normal: Vec<V3<L<W>>>,
+    pub(crate) contact_point: LaneVec<V3<L<W>>>,
+    pub(crate) contact_normal: LaneVec<V3<L<W>>>,
     /// Per lane: substeps since the start of its episode (its own clock).
     pub(crate) clock: [u64; W],
     /// 1.0 for lanes still simulated, 0.0 for frozen ones.
@@ -81,8 +81,8 @@ impl<const W: usize> State<W> {
         let zero = L::<W>::splat(0.0);
         let one = L::<W>::splat(1.0);
         State {
-            x: vec![zero3; n],
-            v: vec![zero3; n],
+            x: lane_vec(zero3, n),
+            v: lane_vec(zero3, n),
             disc: LaneDisc {
                 com: zero3,
                 q: Quat {
@@ -101,7 +101,7 @@ impl<const W: usize> State<W> {
                 };
                 model.num_cup
             ],
-            spring_force: vec![zero3; model.num_cup],
+            spring_force: lane_vec(zero3, model.num_cup),
             cups: vec![
                 LaneCup {
                     attached: one,
@@ -110,8 +110,8 @@ impl<const W: usize> State<W> {
                 };
                 model.num_cups()
             ],
-            contact_point: vec![zero3; n],
-            contact_normal: vec![zero3; n],
+            contact_point: lane_vec(zero3, n),
+            contact_normal: lane_vec(zero3, n),
             clock: [0; W],
             active: one,
         }

@@ -17,7 +17,7 @@ use crate::constants::StepConstants;
 use crate::episode::{EpisodeSpec, HealthEvent, SealEvent};
 use crate::math::{get3, set3, Quat, V3};
 use crate::model::Model;
-use crate::solvers::{AnySolver, Integrator, Substep};
+use crate::solvers::{AnySolver, Integrator, Simd, Substep};
 use crate::state::{LaneSetup, State};
 use crate::tool::{ToolDrive, ToolState};
 use crate::trajectory::ToolTrajectory;
@@ -227,6 +227,7 @@ impl<const W: usize> EnvBlock<W> {
         k: &StepConstants,
         substeps: u64,
         parallel: bool,
+        simd: Simd,
     ) {
         for _ in 0..substeps {
             // A block whose environments are all frozen or retired would only copy its state over.
@@ -241,6 +242,7 @@ impl<const W: usize> EnvBlock<W> {
                 t1: self.state.lane_times(k.dt64, k.dt64),
                 tool: self.setup.tool_lanes(&t, k.rest_time),
                 parallel,
+                simd,
             };
             self.solver.substep(&step, &mut self.state);
             // Seal loads and failures (take effect from the next substep).

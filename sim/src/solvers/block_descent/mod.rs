@@ -23,11 +23,11 @@ mod tests;
 mod vertex;
 
 use crate::forces::{self, ContactMaterial};
-use crate::math::{get3, set3, Lanes, Quat, Real, Sym3, V3};
+use crate::math::{get3, lane_vec, set3, LaneVec, Lanes, Quat, Real, Sym3, V3};
 use crate::model::Model;
 use crate::state::{LaneParams, State};
 
-use super::{Integrator, Substep};
+use super::{keep, Integrator, Substep};
 use disc::{rotation_between, turned, world_inertia_times, Disc6};
 use vertex::{contact_vertex, spring_vertex, Membrane};
 
@@ -40,27 +40,27 @@ pub(crate) struct BlockDescent<const W: usize> {
     /// Chebyshev acceleration's spectral radius estimate (0: off).
     chebyshev_rho: f32,
     /// Package positions at the start of the substep and their inertial predictions.
-    x_start: Vec<V3<L<W>>>,
-    inertia_target: Vec<V3<L<W>>>,
+    x_start: LaneVec<V3<L<W>>>,
+    inertia_target: LaneVec<V3<L<W>>>,
     /// The step velocity `(x − x_start) / h` of each package vertex's current iterate, kept with
     /// `x` (every element around a vertex reads it).
-    x_rate: Vec<V3<L<W>>>,
+    x_rate: LaneVec<V3<L<W>>>,
     /// Attachment springs per package vertex (`spring_slot_starts[i]..spring_slot_starts[i + 1]`
     /// of `spring_slots`), the counts per vertex and lane that index them, and the particles near
     /// the disc this substep.
     spring_slot_starts: Vec<u32>,
-    spring_slots: Vec<SpringSlot<W>>,
+    spring_slots: LaneVec<SpringSlot<W>>,
     spring_counts: Vec<[u32; W]>,
     disc_candidates: Vec<u32>,
     /// Whether each package particle is among `disc_candidates`.
     near_disc: Vec<bool>,
     /// With Chebyshev acceleration only: package positions before the current sweep and before
     /// the previous one.
-    x_before: Vec<V3<L<W>>>,
-    x_older: Vec<V3<L<W>>>,
+    x_before: LaneVec<V3<L<W>>>,
+    x_older: LaneVec<V3<L<W>>>,
     /// Bending force and stiffness per package vertex at a sweep's start.
-    bend_force: Vec<V3<L<W>>>,
-    bend_stiffness: Vec<Sym3<L<W>>>,
+    bend_force: LaneVec<V3<L<W>>>,
+    bend_stiffness: LaneVec<Sym3<L<W>>>,
 }
 
 /// One attachment spring slot of a package vertex, per lane: the cup particle it pulls towards
@@ -304,18 +304,18 @@ impl<const W: usize> Integrator<W> for BlockDescent<W> {
         BlockDescent {
             iterations: c.iterations,
             chebyshev_rho: c.chebyshev_rho,
-            x_start: vec![zero3; n],
-            inertia_target: vec![zero3; n],
-            x_rate: vec![zero3; n],
+            x_start: lane_vec(zero3, n),
+            inertia_target: lane_vec(zero3, n),
+            x_rate: lane_vec(zero3, n),
             spring_slot_starts: Vec::new(),
-            spring_slots: Vec::new(),
+            spring_slots: LaneVec::new(64),
             spring_counts: Vec::new(),
             disc_candidates: Vec::new(),
             near_disc: Vec::new(),
-            x_before: vec![zero3; chebyshev],
-            x_older: vec![zero3; chebyshev],
-            bend_force: vec![zero3; n],
-            bend_stiffness: vec![Sym3::zero(); n],
+            x_before: lane_vec(zero3, chebyshev),
+            x_older: lane_vec(zero3, chebyshev),
+            bend_force: lane_vec(zero3, n),
+            bend_stiffness: lane_vec(Sym3::zero(), n),
         }
     }
 
@@ -359,7 +359,6 @@ impl<const W: usize> BlockDescent<W> {
         let h = L::<W>::splat(k.dt);
         let inv_h = L::<W>::splat(1.0 / k.dt);
         let active = state.active;
-        let keep = |new: V3<L<W>>, old: V3<L<W>>| V3::select_lt(half, active, new, old);
         let cup_start = model.cup_start();
         let num_package = model.num_package;
         let p = setup.params;
@@ -374,8 +373,8 @@ impl<const W: usize> BlockDescent<W> {
             let i = cup_start + c;
             let start = tq.rotate(*off) + tp;
             let end = nq.rotate(*off) + np;
-            state.x[i] = keep(end, state.x[i]);
-            state.v[i] = keep((end - start) * inv_h, state.v[i]);
+            state.x[i] = keep(active, end, state.x[i]);
+            state.v[i] = keep(active, (end - start) * inv_h, state.v[i]);
         }
 
         // 2. Inertial predictions of the film and the disc.
@@ -384,7 +383,7 @@ impl<const W: usize> BlockDescent<W> {
             self.x_start[i] = state.x[i];
             let y = state.x[i] + state.v[i] * h + gravity * h2;
             self.inertia_target[i] = y;
-            state.x[i] = keep(y, state.x[i]);
+            state.x[i] = keep(active, y, state.x[i]);
             self.x_rate[i] = (state.x[i] - self.x_start[i]) * inv_h;
         }
         let disc_start = state.disc;
@@ -487,7 +486,7 @@ impl<const W: usize> BlockDescent<W> {
             global.solve();
             if let Some(dx) = global.residual() {
                 for (i, d) in dx.iter().enumerate() {
-                    state.x[i] = keep(state.x[i] + *d, state.x[i]);
+                    state.x[i] = keep(active, state.x[i] + *d, state.x[i]);
                     self.x_rate[i] = (state.x[i] - self.x_start[i]) * inv_h;
                 }
             }
@@ -504,7 +503,7 @@ impl<const W: usize> BlockDescent<W> {
                 let xi = state.x[i];
                 let (force, stiff) = self.vertex_system(&terms, state, i);
                 let dx = stiff.solve(force);
-                state.x[i] = keep(xi + dx, xi);
+                state.x[i] = keep(active, xi + dx, xi);
                 self.x_rate[i] = (state.x[i] - self.x_start[i]) * inv_h;
             }
 
@@ -520,7 +519,7 @@ impl<const W: usize> BlockDescent<W> {
                     let w = L::<W>::splat(omega);
                     for i in 0..num_package {
                         let older = self.x_older[i];
-                        state.x[i] = keep((state.x[i] - older) * w + older, state.x[i]);
+                        state.x[i] = keep(active, (state.x[i] - older) * w + older, state.x[i]);
                         self.x_rate[i] = (state.x[i] - self.x_start[i]) * inv_h;
                     }
                 }
@@ -600,7 +599,7 @@ impl<const W: usize> BlockDescent<W> {
             let dc = V3::new(newton[0], newton[1], newton[2]);
             let dtheta = V3::new(newton[3], newton[4], newton[5]);
             let moved = V3::select_lt(half, held, com, com + dc);
-            com = keep(moved, com);
+            com = keep(active, moved, com);
             let turned_q = turned(q, dtheta);
             let free = active * (L::splat(1.0) - turning);
             q = Quat {
@@ -615,20 +614,20 @@ impl<const W: usize> BlockDescent<W> {
             let v1 = self.x_rate[i];
             let speed = v1.length();
             let v1 = V3::select_lt(max_speed, speed, v1 * (max_speed / speed), v1);
-            state.v[i] = keep(v1, state.v[i]);
-            state.x[i] = keep(self.x_start[i] + v1 * h, state.x[i]);
+            state.v[i] = keep(active, v1, state.v[i]);
+            state.x[i] = keep(active, self.x_start[i] + v1 * h, state.x[i]);
         }
         let (_, held_v) = setup.held_disc(&t1, k.rest_time, com, (com - disc_start.com) * inv_h);
         let w1 = rotation_between(q, disc_start.q) * inv_h;
         let w1 = w1 * (L::splat(1.0) - L::splat(k.angular_damping) * h);
         let (_, w1, _) = setup.held_turn(&t1, k.rest_time, q, w1);
-        state.disc.com = keep(com, disc_start.com);
-        state.disc.v = keep(held_v, disc_start.v);
+        state.disc.com = keep(active, com, disc_start.com);
+        state.disc.v = keep(active, held_v, disc_start.v);
         state.disc.q = Quat {
-            v: keep(q.v, disc_start.q.v),
+            v: keep(active, q.v, disc_start.q.v),
             w: L::select_lt(half, active, q.w, disc_start.q.w),
         };
-        state.disc.w = keep(w1, disc_start.w);
+        state.disc.w = keep(active, w1, disc_start.w);
 
         // 7. Attachment spring forces for the seal model.
         for (s, spring) in state.springs.iter().enumerate() {

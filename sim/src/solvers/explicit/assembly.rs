@@ -180,9 +180,11 @@ fn bending_forces<const W: usize>(
         let id = e.idx.map(|i| i as usize);
         let rest = L::splat(e.rest_angle);
         let fs = forces::bending(id.map(|i| x[i]), id.map(|i| v[i]), rest, mat[0], mat[1]);
-        for (q, fq) in id.iter().zip(fs) {
-            f[*q] += fq;
-        }
+        // Written out, not an iterator over the four (see the block-descent bending).
+        f[id[0]] += fs[0];
+        f[id[1]] += fs[1];
+        f[id[2]] += fs[2];
+        f[id[3]] += fs[3];
     }
 }
 
@@ -200,7 +202,7 @@ fn triangle_forces<const W: usize>(
     }
     for tri in tris {
         let [a, b, c] = tri.idx.map(|i| i as usize);
-        let dm = tri.rest.dm.map(|row| row.map(L::splat));
+        let dm = tri.rest.dm_splat();
         let inv_area = L::splat(tri.rest.inv_rest_area());
         let fs = forces::triangle(
             [x[a], x[b], x[c]],

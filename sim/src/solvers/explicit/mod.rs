@@ -10,11 +10,11 @@
 mod assembly;
 
 use crate::config::DriveMode;
-use crate::math::{Lanes, Quat, Real, V3};
+use crate::math::{lane_vec, LaneVec, Lanes, Quat, Real, V3};
 use crate::model::Model;
 use crate::state::{LaneDisc, State, ToolLanes};
 
-use super::{Integrator, Substep};
+use super::{keep, Integrator, Substep};
 use assembly::{
     contact_and_bending_forces, contact_and_bending_forces_simd, membrane_forces,
     membrane_forces_simd,
@@ -33,8 +33,8 @@ pub(crate) struct SemiImplicitEuler<const W: usize> {
     /// Substeps between regenerations of the frozen disc contact data.
     contact_refresh: u64,
     /// Forces of the membrane half and of the contact half of the evaluation.
-    f: Vec<V3<L<W>>>,
-    f2: Vec<V3<L<W>>>,
+    f: LaneVec<V3<L<W>>>,
+    f2: LaneVec<V3<L<W>>>,
 }
 
 impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
@@ -46,8 +46,8 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
             kp: c.cups.servo_kp,
             kff: c.cups.servo_kff,
             contact_refresh: c.disc.contact_refresh_substeps as u64,
-            f: vec![V3::zero(); n],
-            f2: vec![V3::zero(); n],
+            f: lane_vec(V3::zero(), n),
+            f2: lane_vec(V3::zero(), n),
         }
     }
 
@@ -62,7 +62,6 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
         let half = L::<W>::splat(0.5);
         let dt = L::<W>::splat(k.dt);
         let active = state.active;
-        let keep = |new: V3<L<W>>, old: V3<L<W>>| V3::select_lt(half, active, new, old);
         let cup_start = model.cup_start();
         let n = model.num_particles();
         let p = setup.params;
@@ -80,7 +79,7 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
                     let i = cup_start + c;
                     let target = tq.rotate(*off) + tp;
                     let vel = (target - state.x[i]) * kp + tv * kff;
-                    state.v[i] = keep(vel, state.v[i]);
+                    state.v[i] = keep(active, vel, state.v[i]);
                 }
             }
             DriveMode::Kinematic => {
@@ -90,8 +89,8 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
                     let i = cup_start + c;
                     let target = tq.rotate(*off) + tp;
                     let next = nq.rotate(*off) + np;
-                    state.x[i] = keep(target, state.x[i]);
-                    state.v[i] = keep((next - target) / dt, state.v[i]);
+                    state.x[i] = keep(active, target, state.x[i]);
+                    state.v[i] = keep(active, (next - target) / dt, state.v[i]);
                 }
             }
         }
@@ -143,13 +142,13 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
         let (com1, v1) = setup.held_disc(&step.t1, k.rest_time, com1, v1);
         let (q1, w1, _) = setup.held_turn(&step.t1, k.rest_time, q1, w1);
         state.disc = LaneDisc {
-            com: keep(com1, disc.com),
+            com: keep(active, com1, disc.com),
             q: Quat {
-                v: keep(q1.v, disc.q.v),
+                v: keep(active, q1.v, disc.q.v),
                 w: L::select_lt(half, active, q1.w, disc.q.w),
             },
-            v: keep(v1, disc.v),
-            w: keep(w1, disc.w),
+            v: keep(active, v1, disc.v),
+            w: keep(active, w1, disc.w),
         };
 
         // 8. Integrate particles (Warp `integrate_particles`), one loop per kind of particle:
@@ -161,7 +160,7 @@ impl<const W: usize> Integrator<W> for SemiImplicitEuler<W> {
         if self.drive == DriveMode::Kinematic {
             // The cups move at the velocity set in step 1.
             for i in cup_start..n {
-                state.x[i] = keep(state.x[i] + state.v[i] * dt, state.x[i]);
+                state.x[i] = keep(active, state.x[i] + state.v[i] * dt, state.x[i]);
             }
         } else {
             self.integrate_free(state, cup_start..n, p.inv_mass_cup, gravity, dt, max_speed);

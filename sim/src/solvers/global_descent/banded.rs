@@ -7,7 +7,7 @@
 //! factor one matrix of `f64`/`f32` at a time, while here the `W` environments of a block are
 //! factored together in SIMD lanes (the factor costs `n·b²/2` lane operations, a solve `2·n·b`).
 
-use crate::math::{Lanes, Real, V3};
+use crate::math::{lane_vec, LaneVec, Lanes, Real, V3};
 
 type L<const W: usize> = Lanes<W>;
 
@@ -18,7 +18,10 @@ pub(crate) struct Banded<const W: usize> {
     b: usize,
     /// Row `i` holds `(i, i − b ..= i)` at `i·(b + 1) ..`; entries before column 0 stay 0. After
     /// factoring: the factor `L` below the diagonal and `1 / L_ii` on it.
-    entries: Vec<L<W>>,
+    entries: LaneVec<L<W>>,
+    /// The factor again by columns: column `j` holds `(j ..= j + b, j)` at `j·(b + 1) ..` (`1 / L_jj`
+    /// first), so the backward solve reads it in order instead of one band row apart per entry.
+    columns: LaneVec<L<W>>,
 }
 
 impl<const W: usize> Banded<W> {
@@ -27,19 +30,14 @@ impl<const W: usize> Banded<W> {
         Banded {
             n,
             b,
-            entries: vec![L::splat(0.0); n * (b + 1)],
+            entries: lane_vec(L::splat(0.0), n * (b + 1)),
+            columns: lane_vec(L::splat(0.0), n * (b + 1)),
         }
     }
 
     /// Size and half bandwidth.
     pub(crate) fn shape(&self) -> (usize, usize) {
         (self.n, self.b)
-    }
-
-    /// Index of entry `(i, j)`, `j ≤ i ≤ j + b`.
-    #[inline(always)]
-    fn at(&self, i: usize, j: usize) -> usize {
-        i * (self.b + 1) + self.b + j - i
     }
 
     /// Row `i` of the lower band, entries `(i, i − b ..= i)`.
@@ -51,7 +49,7 @@ impl<const W: usize> Banded<W> {
 
     /// Bytes held.
     pub(crate) fn bytes(&self) -> usize {
-        self.entries.capacity() * std::mem::size_of::<L<W>>()
+        (self.entries.capacity() + self.columns.capacity()) * std::mem::size_of::<L<W>>()
     }
 
     /// Factors the matrix in place, `A = L·Lᵀ` (row-by-row Cholesky-Crout).
@@ -83,7 +81,7 @@ impl<const W: usize> Banded<W> {
     fn factor_entries<const G: usize>(&mut self, i: usize, j0: usize, j: usize) {
         let b = self.b;
         let at = |r: usize, c: usize| r * (b + 1) + b + c - r;
-        let e = &mut self.entries;
+        let (e, columns) = (&mut self.entries, &mut self.columns);
         let len = j - j0;
         let mut s: [L<W>; G] = std::array::from_fn(|g| e[at(i, j + g)]);
         let row_i = &e[at(i, j0)..at(i, j0) + len];
@@ -99,11 +97,13 @@ impl<const W: usize> Banded<W> {
             for k in j..j + g {
                 sg -= e[at(i, k)] * e[at(j + g, k)];
             }
-            e[at(i, j + g)] = if j + g < i {
+            let value = if j + g < i {
                 sg * e[at(j + g, j + g)]
             } else {
                 L::splat(1.0) / sg.sqrt()
             };
+            e[at(i, j + g)] = value;
+            columns[(j + g) * (b + 1) + i - (j + g)] = value;
         }
     }
 
@@ -140,12 +140,16 @@ impl<const W: usize> Banded<W> {
             }
             rhs[i] = s * row[b];
         }
+        // Backward, each sum in column order from `i + 1`.
+        let w = b + 1;
         for i in (0..n).rev() {
+            let column = &self.columns[i * w..(i + 1) * w];
+            let end = n.min(i + w);
             let mut s = rhs[i];
-            for k in i + 1..n.min(i + b + 1) {
-                s -= rhs[k] * self.entries[self.at(k, i)];
+            for (r, l) in rhs[i + 1..end].iter().zip(&column[1..end - i]) {
+                s -= *r * *l;
             }
-            rhs[i] = s * self.entries[self.at(i, i)];
+            rhs[i] = s * column[0];
         }
     }
 

@@ -40,7 +40,7 @@ mod banded;
 mod tests;
 
 use crate::forces;
-use crate::math::{Lanes, Real, V3};
+use crate::math::{lane_vec, LaneVec, Lanes, Real, V3};
 use crate::model::Model;
 use crate::state::State;
 
@@ -85,11 +85,11 @@ struct GlobalSystem<const W: usize> {
     /// `P` of each lane, factored every substep.
     system: Banded<W>,
     /// Residual forces per package particle, then the global displacement.
-    residual: Vec<V3<L<W>>>,
+    residual: LaneVec<V3<L<W>>>,
     /// The residual in band order.
-    rhs: Vec<V3<L<W>>>,
+    rhs: LaneVec<V3<L<W>>>,
     /// The diagonal terms of `P` besides the membrane's, per package particle.
-    diagonal: Vec<L<W>>,
+    diagonal: LaneVec<L<W>>,
 }
 
 impl<const W: usize> GlobalSystem<W> {
@@ -145,9 +145,9 @@ impl<const W: usize> GlobalSystem<W> {
             row_of,
             laplacian: laplacian.into_iter().map(|v| v as f32).collect(),
             system: Banded::new(n, band),
-            residual: vec![V3::zero(); n],
-            rhs: vec![V3::zero(); n],
-            diagonal: Vec::with_capacity(n),
+            residual: lane_vec(V3::zero(), n),
+            rhs: lane_vec(V3::zero(), n),
+            diagonal: LaneVec::with_capacity(64, n),
         }
     }
 
@@ -215,7 +215,7 @@ impl<const W: usize> GlobalStep<W> for GlobalSystem<W> {
 
     #[inline(always)]
     fn residual(&mut self) -> Option<&mut [V3<L<W>>]> {
-        Some(&mut self.residual)
+        Some(&mut self.residual[..])
     }
 
     #[inline(always)]
