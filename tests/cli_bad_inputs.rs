@@ -80,6 +80,38 @@ fn optimize_config(dir: &Path, from: &str, to: &str) {
     std::fs::write(dir.join("optimize.toml"), text.replace(from, to)).unwrap();
 }
 
+/// The shipped `transport-posterior.toml` in `dir`, its posterior `posterior/samples.csv` holding
+/// `rows`; returns the arguments that train it.
+fn posterior_draws(dir: &Path, rows: &str) -> Vec<String> {
+    shipped_config(
+        dir,
+        "transport-posterior.toml",
+        "posterior = \"data/posteriors/coarse-soft-film\"",
+        "posterior = \"posterior/samples.csv\"",
+    );
+    std::fs::create_dir(dir.join("posterior")).unwrap();
+    std::fs::write(dir.join("posterior/samples.csv"), rows).unwrap();
+    args(&["train", "transport-posterior.toml"])
+}
+
+/// `dir/seal.toml`: a two-vacuum seal fit of the real recordings (which flag no failure) on the
+/// study's scene, 0.1 s each, into `out`.
+fn seal_config(dir: &Path) {
+    let text = format!(
+        "dataset = {:?}\nscene = {:?}\nout = \"out\"\nmax_seconds = 0.1\n\n\
+         [grid]\nvacuum_kpa = {{ min = 20.0, max = 30.0, steps = 2 }}\n",
+        repo()
+            .join("data/deformable-sim-real")
+            .display()
+            .to_string(),
+        repo()
+            .join("configs/scenes/study.toml")
+            .display()
+            .to_string(),
+    );
+    std::fs::write(dir.join("seal.toml"), text).unwrap();
+}
+
 /// `dir/calibrate.toml`: one batch of two on the first 0.05 s of HHHHH in the scene `preset`, into
 /// `out`.
 fn tiny_calibration(dir: &Path, preset: &str) {
@@ -638,19 +670,7 @@ fn cases() -> Vec<Case> {
         Case {
             name: "transport: posterior draw with a negative stiffness",
             setup: |dir| {
-                shipped_config(
-                    dir,
-                    "transport-posterior.toml",
-                    "posterior = \"data/posteriors/coarse-soft-film\"",
-                    "posterior = \"posterior/samples.csv\"",
-                );
-                std::fs::create_dir(dir.join("posterior")).unwrap();
-                std::fs::write(
-                    dir.join("posterior/samples.csv"),
-                    "k_tri_e,k_spr_e,mu_con\n2000,30,0.5\n-2000,30,0.5\n",
-                )
-                .unwrap();
-                args(&["train", "transport-posterior.toml"])
+                posterior_draws(dir, "k_tri_e,k_spr_e,mu_con\n2000,30,0.5\n-2000,30,0.5\n")
             },
             expected: &[
                 "transport-posterior.toml",
@@ -701,21 +721,7 @@ fn cases() -> Vec<Case> {
         },
         Case {
             name: "transport: posterior draw beyond a parameter's range",
-            setup: |dir| {
-                shipped_config(
-                    dir,
-                    "transport-posterior.toml",
-                    "posterior = \"data/posteriors/coarse-soft-film\"",
-                    "posterior = \"posterior/samples.csv\"",
-                );
-                std::fs::create_dir(dir.join("posterior")).unwrap();
-                std::fs::write(
-                    dir.join("posterior/samples.csv"),
-                    "k_tri_e,k_spr_e,mu_con\n2000,30,0.5\n2000,30,1e6\n",
-                )
-                .unwrap();
-                args(&["train", "transport-posterior.toml"])
-            },
+            setup: |dir| posterior_draws(dir, "k_tri_e,k_spr_e,mu_con\n2000,30,0.5\n2000,30,1e6\n"),
             expected: &[
                 "posterior/samples.csv line 3 column 3",
                 "key `mu_con` = 1e6",
@@ -956,22 +962,7 @@ fn cases() -> Vec<Case> {
         Case {
             name: "seal fit on a dataset without a failure take",
             setup: |dir| {
-                std::fs::write(
-                    dir.join("seal.toml"),
-                    format!(
-                        "dataset = {:?}\nscene = {:?}\nout = \"out\"\nmax_seconds = 0.1\n\n\
-                         [grid]\nvacuum_kpa = {{ min = 20.0, max = 30.0, steps = 2 }}\n",
-                        repo()
-                            .join("data/deformable-sim-real")
-                            .display()
-                            .to_string(),
-                        repo()
-                            .join("configs/scenes/study.toml")
-                            .display()
-                            .to_string(),
-                    ),
-                )
-                .unwrap();
+                seal_config(dir);
                 args(&["seal", "fit", "seal.toml"])
             },
             expected: &[
@@ -983,22 +974,7 @@ fn cases() -> Vec<Case> {
         Case {
             name: "seal fit into a file",
             setup: |dir| {
-                std::fs::write(
-                    dir.join("seal.toml"),
-                    format!(
-                        "dataset = {:?}\nscene = {:?}\nout = \"out\"\nmax_seconds = 0.1\n\n\
-                         [grid]\nvacuum_kpa = {{ min = 20.0, max = 30.0, steps = 2 }}\n",
-                        repo()
-                            .join("data/deformable-sim-real")
-                            .display()
-                            .to_string(),
-                        repo()
-                            .join("configs/scenes/study.toml")
-                            .display()
-                            .to_string(),
-                    ),
-                )
-                .unwrap();
+                seal_config(dir);
                 std::fs::write(dir.join("out"), "").unwrap();
                 args(&["seal", "fit", "seal.toml"])
             },

@@ -312,12 +312,17 @@ fn quick_preset(dir: &Path) -> PathBuf {
     path
 }
 
-/// The synthetic calibration's box on the quick scene and a 30-frame dataset in split `split`, with
-/// its posterior made: (dataset, preset, calibration config, calibration folder).
-fn quick_posterior(dir: &Path, split: &str) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
-    let data = small_dataset(dir, 30, split);
+/// A calibration config of the box `params` on the quick scene and a dataset of `frames` frames
+/// of HHHHH in split `split`: (dataset, preset, config).
+fn quick_config(
+    dir: &Path,
+    frames: usize,
+    split: &str,
+    params: &[(&str, f64, f64, bool)],
+) -> (PathBuf, PathBuf, PathBuf) {
+    let data = small_dataset(dir, frames, split);
     let preset = quick_preset(dir);
-    let cfg = config(dir, &BOX);
+    let cfg = config(dir, params);
     let body = std::fs::read_to_string(&cfg)
         .unwrap()
         .replace("data/deformable-sim-real", data.to_str().unwrap())
@@ -326,6 +331,13 @@ fn quick_posterior(dir: &Path, split: &str) -> (PathBuf, PathBuf, PathBuf, PathB
             &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
         );
     std::fs::write(&cfg, body).unwrap();
+    (data, preset, cfg)
+}
+
+/// The synthetic calibration's box on the quick scene and a 30-frame dataset in split `split`, with
+/// its posterior made: (dataset, preset, calibration config, calibration folder).
+fn quick_posterior(dir: &Path, split: &str) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
+    let (data, preset, cfg) = quick_config(dir, 30, split, &BOX);
     let folder = calibration(dir, 48);
     let mut args = vec!["posterior", cfg.to_str().unwrap()];
     args.extend(QUICK);
@@ -660,17 +672,7 @@ fn validate_replays_draws_and_keeps_those_within_the_threshold() {
 #[test]
 fn spread_prints_how_far_nudged_replays_move_beside_the_noise() {
     let dir = tempfile::tempdir().unwrap();
-    let data = small_dataset(dir.path(), 48, "train");
-    let preset = quick_preset(dir.path());
-    let cfg = config(dir.path(), &[("k_tri_e", 1e3, 1e6, true)]);
-    let body = std::fs::read_to_string(&cfg)
-        .unwrap()
-        .replace("data/deformable-sim-real", data.to_str().unwrap())
-        .replace(
-            "preset = \"reference\"",
-            &format!("preset = {:?}\nbetween = 0", preset.to_str().unwrap()),
-        );
-    std::fs::write(&cfg, body).unwrap();
+    let (_, _, cfg) = quick_config(dir.path(), 48, "train", &[("k_tri_e", 1e3, 1e6, true)]);
     let out = rlpkg(
         &["posterior", cfg.to_str().unwrap(), "--spread", "1e-3"],
         "2",

@@ -592,6 +592,17 @@ impl SceneConfig {
                 -360.0,
                 360.0,
             )?;
+            // Two cups at one angle of the circle would be built in one place.
+            let same = |b: &f32| (a - b).rem_euclid(360.0).min((b - a).rem_euclid(360.0)) < 1e-3;
+            if c.circle_radius_m > 0.0 && c.angles_deg[..i].iter().any(same) {
+                return Err(SimError::Range {
+                    file: f.to_string(),
+                    key: format!("cups.angles_deg[{i}]"),
+                    value: a.to_string(),
+                    expected: "an angle no other cup has (each cup at its own place on the circle)"
+                        .to_string(),
+                });
+            }
         }
         check_count(f, "cups.samples", c.samples, 3, 64)?;
         check_count(f, "cups.rings", c.rings, 2, 16)?;
@@ -795,6 +806,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("package.grid[0]"), "{err}");
+        // -180 and 180 are one place on the circle.
+        let text = REFERENCE_TOML.replace(
+            "angles_deg = [0.0, 90.0, 180.0, 270.0]",
+            "angles_deg = [0.0, 90.0, 180.0, -180.0]",
+        );
+        let err = SceneConfig::from_toml_str(&text, "bad.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cups.angles_deg[3]") && err.contains("no other cup"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -104,6 +104,8 @@ pub mod randomize;
 mod simulator;
 mod solvers;
 mod state;
+#[cfg(test)]
+mod test_support;
 pub mod tool;
 pub mod trajectory;
 

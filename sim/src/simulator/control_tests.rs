@@ -7,9 +7,11 @@ use glam::DQuat;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use crate::test_support::{held_spec as spec, varied};
+
 use crate::{
-    CupLoad, EnvObservation, EpisodeSpec, HealthReason, Model, NoSealReason, Placement,
-    Randomization, SceneConfig, SealEventKind, Simulator, ToolCommand, ToolTrajectory,
+    CupLoad, EnvObservation, EpisodeSpec, HealthReason, Model, NoSealReason, Randomization,
+    SceneConfig, SealEventKind, Simulator, ToolCommand,
 };
 
 /// The physical scene on a coarse grid, cups held `cup_height` above the package centre, the
@@ -18,23 +20,6 @@ fn scene(grid: [usize; 2]) -> SceneConfig {
     let mut c = SceneConfig::preset("physical").unwrap();
     c.package.grid = grid;
     c
-}
-
-fn spec(config: &SceneConfig, cup_height: f32) -> EpisodeSpec {
-    let size = config.package.size_m;
-    let centre = [size[1] / 2.0, 0.5, size[0] / 2.0];
-    let cup_point = [centre[0], centre[1] + cup_height, centre[2]];
-    EpisodeSpec {
-        placement: Placement::new([0.0, 0.5, 0.0], cup_point, centre),
-        params: config.params,
-        object_mass_kg: 0.5,
-        disc_mass_scale: None,
-        vacuum_kpa: None,
-        trajectory: Arc::new(ToolTrajectory::hold(
-            cup_point.map(f64::from),
-            [0.0, 0.0, 0.0, 1.0],
-        )),
-    }
 }
 
 fn bits(sim: &Simulator, env: usize) -> Vec<u32> {
@@ -50,21 +35,6 @@ fn bits(sim: &Simulator, env: usize) -> Vec<u32> {
 
 fn seconds(sim: &Simulator, s: f64) -> u64 {
     (s / sim.dt() as f64).round() as u64
-}
-
-fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EpisodeSpec> {
-    let randomization = Randomization {
-        object_mass_kg: Some([0.3, 0.7]),
-        object_offset_m: 0.02,
-        package_yaw_deg: [-10.0, 10.0],
-        param_scale: [("k_tri_e".to_string(), [0.7, 1.4])].into_iter().collect(),
-        ..Randomization::default()
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let base = spec(config, 0.01);
-    (0..n)
-        .map(|_| randomization.apply(&base, &mut rng))
-        .collect()
 }
 
 #[test]

@@ -2,11 +2,9 @@
 
 use std::sync::Arc;
 
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-
 use super::{Simd, AVX512_LANES};
-use crate::{EpisodeSpec, Model, Placement, Randomization, SceneConfig, Simulator, ToolTrajectory};
+use crate::test_support::varied;
+use crate::{EpisodeSpec, Model, SceneConfig, Simulator};
 
 /// A shipped scene from `configs/scenes/` on a 6x7 grid.
 fn scene(name: &str) -> SceneConfig {
@@ -16,36 +14,6 @@ fn scene(name: &str) -> SceneConfig {
     let mut c = SceneConfig::load(&path).unwrap();
     c.package.grid = [6, 7];
     c
-}
-
-/// `n` packages held 0.5 m above the ground, each with its own object mass, offset, yaw and film
-/// stiffness.
-fn varied(config: &SceneConfig, n: usize) -> Vec<EpisodeSpec> {
-    let size = config.package.size_m;
-    let centre = [size[1] / 2.0, 0.5, size[0] / 2.0];
-    let cup_point = [centre[0], centre[1] + 0.01, centre[2]];
-    let base = EpisodeSpec {
-        placement: Placement::new([0.0, 0.5, 0.0], cup_point, centre),
-        params: config.params,
-        object_mass_kg: 0.5,
-        disc_mass_scale: None,
-        vacuum_kpa: None,
-        trajectory: Arc::new(ToolTrajectory::hold(
-            cup_point.map(f64::from),
-            [0.0, 0.0, 0.0, 1.0],
-        )),
-    };
-    let randomization = Randomization {
-        object_mass_kg: Some([0.3, 0.7]),
-        object_offset_m: 0.02,
-        package_yaw_deg: [-10.0, 10.0],
-        param_scale: [("k_tri_e".to_string(), [0.7, 1.4])].into_iter().collect(),
-        ..Randomization::default()
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(11);
-    (0..n)
-        .map(|_| randomization.apply(&base, &mut rng))
-        .collect()
 }
 
 /// Positions, velocities and the disc of every environment, as bits.
@@ -79,7 +47,7 @@ fn every_instruction_set_gives_the_same_bits_for_every_solver() {
     ] {
         let c = scene(name);
         let model = Arc::new(Model::new(&c).unwrap());
-        let specs = varied(&c, n);
+        let specs = varied(&c, n, 11);
         let run = |simd: Simd, specs: Vec<EpisodeSpec>| {
             let mut sim = Simulator::with_simd(model.clone(), specs, simd).unwrap();
             let lanes = match (sim.num_envs(), simd) {

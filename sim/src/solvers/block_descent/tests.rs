@@ -3,13 +3,10 @@
 use std::sync::Arc;
 
 use glam::DQuat;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 
-use crate::{
-    EpisodeSpec, HealthReason, Model, Placement, Randomization, SceneConfig, Simulator, Solver,
-    ToolCommand, ToolTrajectory,
-};
+use crate::test_support::{held_spec as spec, varied};
+
+use crate::{HealthReason, Model, SceneConfig, Simulator, Solver, ToolCommand};
 
 /// The physical scene (SI masses, g = −9.81) on `grid`, integrated by block descent at `rate_hz`.
 fn descent(grid: [usize; 2], rate_hz: f64, iterations: u32) -> SceneConfig {
@@ -28,23 +25,6 @@ fn explicit(grid: [usize; 2]) -> SceneConfig {
 }
 
 /// The package 0.5 m above the ground, cups `cup_height` above its centre, a 0.5 kg disc.
-fn spec(config: &SceneConfig, cup_height: f32) -> EpisodeSpec {
-    let size = config.package.size_m;
-    let centre = [size[1] / 2.0, 0.5, size[0] / 2.0];
-    let cup_point = [centre[0], centre[1] + cup_height, centre[2]];
-    EpisodeSpec {
-        placement: Placement::new([0.0, 0.5, 0.0], cup_point, centre),
-        params: config.params,
-        object_mass_kg: 0.5,
-        disc_mass_scale: None,
-        vacuum_kpa: None,
-        trajectory: Arc::new(ToolTrajectory::hold(
-            cup_point.map(f64::from),
-            [0.0, 0.0, 0.0, 1.0],
-        )),
-    }
-}
-
 fn steps(sim: &Simulator, seconds: f64) -> u64 {
     (seconds / sim.dt() as f64).round() as u64
 }
@@ -344,21 +324,6 @@ fn a_held_disc_is_turned_to_its_tilt_during_the_rest() {
         sim.step(steps(&sim, 0.2));
         assert!(sim.disc(0).angular_velocity.iter().any(|w| w.abs() > 1e-3));
     }
-}
-
-fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EpisodeSpec> {
-    let randomization = Randomization {
-        object_mass_kg: Some([0.3, 0.7]),
-        object_offset_m: 0.02,
-        package_yaw_deg: [-10.0, 10.0],
-        param_scale: [("k_tri_e".to_string(), [0.7, 1.4])].into_iter().collect(),
-        ..Randomization::default()
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let base = spec(config, 0.01);
-    (0..n)
-        .map(|_| randomization.apply(&base, &mut rng))
-        .collect()
 }
 
 fn bits(sim: &Simulator, env: usize) -> Vec<u32> {

@@ -2,12 +2,9 @@
 
 use std::sync::Arc;
 
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
+use crate::test_support::{held_spec as spec, varied};
 
-use crate::{
-    EpisodeSpec, Model, Placement, Randomization, SceneConfig, Simulator, Solver, ToolTrajectory,
-};
+use crate::{EpisodeSpec, Model, SceneConfig, Simulator, Solver};
 
 /// A real-film scene on global descent from `configs/scenes/`, at its substep rate.
 fn global_scene(name: &str, substep_rate_hz: f64) -> SceneConfig {
@@ -27,23 +24,6 @@ fn real_film_scene() -> SceneConfig {
 }
 
 /// The package 0.5 m above the ground, cups `cup_height` above its centre, a 0.5 kg disc.
-fn spec(config: &SceneConfig, cup_height: f32) -> EpisodeSpec {
-    let size = config.package.size_m;
-    let centre = [size[1] / 2.0, 0.5, size[0] / 2.0];
-    let cup_point = [centre[0], centre[1] + cup_height, centre[2]];
-    EpisodeSpec {
-        placement: Placement::new([0.0, 0.5, 0.0], cup_point, centre),
-        params: config.params,
-        object_mass_kg: 0.5,
-        disc_mass_scale: None,
-        vacuum_kpa: None,
-        trajectory: Arc::new(ToolTrajectory::hold(
-            cup_point.map(f64::from),
-            [0.0, 0.0, 0.0, 1.0],
-        )),
-    }
-}
-
 fn steps(sim: &Simulator, seconds: f64) -> u64 {
     (seconds / sim.dt() as f64).round() as u64
 }
@@ -101,21 +81,6 @@ fn real_film_held_at_200_substeps_per_second_keeps_the_disc_inside_and_settles()
         "calibrated-global-coarse-real-film-200hz.toml",
         200.0,
     ));
-}
-
-fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EpisodeSpec> {
-    let randomization = Randomization {
-        object_mass_kg: Some([0.3, 0.7]),
-        object_offset_m: 0.02,
-        package_yaw_deg: [-10.0, 10.0],
-        param_scale: [("k_tri_e".to_string(), [0.7, 1.4])].into_iter().collect(),
-        ..Randomization::default()
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let base = spec(config, 0.01);
-    (0..n)
-        .map(|_| randomization.apply(&base, &mut rng))
-        .collect()
 }
 
 fn bits(sim: &Simulator, env: usize) -> Vec<u32> {
