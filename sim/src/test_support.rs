@@ -5,7 +5,7 @@ use std::sync::Arc;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::{EpisodeSpec, Placement, Randomization, SceneConfig, ToolTrajectory};
+use crate::{EpisodeSpec, Placement, Randomization, SceneConfig, Simulator, ToolTrajectory};
 
 /// The package 0.5 m above the ground with the cups held `cup_height` above its centre, the tool
 /// at the cup point (so it turns about the cups' centre), a 0.5 kg disc, the scene's parameters.
@@ -40,5 +40,17 @@ pub(crate) fn varied(config: &SceneConfig, n: usize, seed: u64) -> Vec<EpisodeSp
     let base = held_spec(config, 0.01);
     (0..n)
         .map(|_| randomization.apply(&base, &mut rng))
+        .collect()
+}
+
+/// Positions, velocities and the disc of environment `env`, as bits: what "bit-identical" compares.
+pub(crate) fn env_bits(sim: &Simulator, env: usize) -> Vec<u32> {
+    let d = sim.disc(env);
+    sim.particle_positions(env)
+        .iter()
+        .chain(&sim.particle_velocities(env))
+        .flatten()
+        .chain(d.position.iter().chain(&d.orientation).chain(&d.velocity))
+        .map(|c| c.to_bits())
         .collect()
 }

@@ -7,7 +7,7 @@ use glam::DQuat;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::test_support::{held_spec as spec, varied};
+use crate::test_support::{env_bits as bits, held_spec as spec, varied};
 
 use crate::{
     CupLoad, EnvObservation, EpisodeSpec, HealthReason, Model, NoSealReason, Randomization,
@@ -20,17 +20,6 @@ fn scene(grid: [usize; 2]) -> SceneConfig {
     let mut c = SceneConfig::preset("physical").unwrap();
     c.package.grid = grid;
     c
-}
-
-fn bits(sim: &Simulator, env: usize) -> Vec<u32> {
-    let d = sim.disc(env);
-    sim.particle_positions(env)
-        .iter()
-        .chain(&sim.particle_velocities(env))
-        .flatten()
-        .chain(d.position.iter().chain(&d.orientation).chain(&d.velocity))
-        .map(|c| c.to_bits())
-        .collect()
 }
 
 fn seconds(sim: &Simulator, s: f64) -> u64 {

@@ -3,7 +3,7 @@
 use std::sync::Arc;
 
 use super::{Simd, AVX512_LANES};
-use crate::test_support::varied;
+use crate::test_support::{env_bits, varied};
 use crate::{EpisodeSpec, Model, SceneConfig, Simulator};
 
 /// A shipped scene from `configs/scenes/` on a 6x7 grid.
@@ -18,18 +18,7 @@ fn scene(name: &str) -> SceneConfig {
 
 /// Positions, velocities and the disc of every environment, as bits.
 fn bits(sim: &Simulator) -> Vec<Vec<u32>> {
-    (0..sim.num_envs())
-        .map(|env| {
-            let d = sim.disc(env);
-            sim.particle_positions(env)
-                .iter()
-                .chain(&sim.particle_velocities(env))
-                .flatten()
-                .chain(d.position.iter().chain(&d.orientation).chain(&d.velocity))
-                .map(|c| c.to_bits())
-                .collect()
-        })
-        .collect()
+    (0..sim.num_envs()).map(|env| env_bits(sim, env)).collect()
 }
 
 #[test]

@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use glam::DQuat;
 
-use crate::test_support::{held_spec as spec, varied};
+use crate::test_support::{env_bits as bits, held_spec as spec, varied};
 
 use crate::{HealthReason, Model, SceneConfig, Simulator, Solver, ToolCommand};
 
@@ -324,17 +324,6 @@ fn a_held_disc_is_turned_to_its_tilt_during_the_rest() {
         sim.step(steps(&sim, 0.2));
         assert!(sim.disc(0).angular_velocity.iter().any(|w| w.abs() > 1e-3));
     }
-}
-
-fn bits(sim: &Simulator, env: usize) -> Vec<u32> {
-    let d = sim.disc(env);
-    sim.particle_positions(env)
-        .iter()
-        .chain(&sim.particle_velocities(env))
-        .flatten()
-        .chain(d.position.iter().chain(&d.orientation).chain(&d.velocity))
-        .map(|c| c.to_bits())
-        .collect()
 }
 
 #[test]

@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use crate::test_support::{held_spec as spec, varied};
+use crate::test_support::{env_bits as bits, held_spec as spec, varied};
 
 use crate::{EpisodeSpec, Model, SceneConfig, Simulator, Solver};
 
@@ -81,17 +81,6 @@ fn real_film_held_at_200_substeps_per_second_keeps_the_disc_inside_and_settles()
         "calibrated-global-coarse-real-film-200hz.toml",
         200.0,
     ));
-}
-
-fn bits(sim: &Simulator, env: usize) -> Vec<u32> {
-    let d = sim.disc(env);
-    sim.particle_positions(env)
-        .iter()
-        .chain(&sim.particle_velocities(env))
-        .flatten()
-        .chain(d.position.iter().chain(&d.orientation).chain(&d.velocity))
-        .map(|c| c.to_bits())
-        .collect()
 }
 
 #[test]
