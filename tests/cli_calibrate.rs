@@ -323,6 +323,7 @@ polish_iterations = 2
 [smc.mode_search]
 population = 4
 generations = 3
+first_horizon_s = 0.02
 
 [loss]
 object = 1.0
@@ -380,8 +381,18 @@ fn samples_a_posterior_on_the_simulator_and_resumes_it_exactly() {
     }
     let search = std::fs::read_to_string(out_dir.join("search.csv")).unwrap();
     assert!(
-        search.starts_with("generation,evaluations,best_log_likelihood")
+        search.starts_with("generation,evaluations,horizon_s,best_log_likelihood")
             && search.lines().count() > 1,
+        "{search}"
+    );
+    // The growing horizon: 0.02 s, 0.04 s, then the whole 0.05 s (an empty horizon).
+    let horizons: Vec<&str> = search
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(2).unwrap())
+        .collect();
+    assert!(
+        horizons[0] == "0.02" && horizons.contains(&"0.04") && horizons.last() == Some(&""),
         "{search}"
     );
     let samples = std::fs::read_to_string(out_dir.join("samples.csv")).unwrap();

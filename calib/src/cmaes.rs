@@ -29,6 +29,36 @@ pub struct ModeSearchSettings {
     /// factor (wider than the search ends, so that it covers the posterior).
     #[serde(default = "default_reference_scale")]
     pub reference_scale: f64,
+    /// A growing horizon: the search first fits the recordings' first `first_horizon_s`, then
+    /// twice that, and so on up to the whole recordings, each horizon until it converges (or for
+    /// `generations`), every horizon continuing the last one's search distribution. Whole
+    /// recordings from the start when absent.
+    ///
+    /// Why: a film solved to convergence is multistable (it folds one way or another), so on a
+    /// whole recording the likelihood is piecewise smooth with basins a few per cent wide, and a
+    /// search across the box lands in whichever basin its population happens to sample. Over a
+    /// short start the replays have not yet parted, the basins are wide and the search finds the
+    /// truth's neighbourhood; each longer horizon narrows it from there (continuation in the
+    /// horizon, as in multiple shooting for chaotic systems).
+    #[serde(default)]
+    pub first_horizon_s: Option<f64>,
+}
+
+impl ModeSearchSettings {
+    /// The horizons of the search on recordings `duration_s` long: `Some(seconds)` for each
+    /// shorter start, `None` (the whole recordings) last.
+    pub fn horizons(&self, duration_s: f64) -> Vec<Option<f64>> {
+        let mut horizons = Vec::new();
+        if let Some(first) = self.first_horizon_s {
+            let mut h = first;
+            while h < duration_s {
+                horizons.push(Some(h));
+                h *= 2.0;
+            }
+        }
+        horizons.push(None);
+        horizons
+    }
 }
 
 fn default_initial_step() -> f64 {
@@ -67,6 +97,13 @@ pub fn check_settings(dim: usize, s: &ModeSearchSettings) -> Result<(), String> 
             s.initial_step
         ));
     }
+    if let Some(h) = s.first_horizon_s {
+        if !(h.is_finite() && h > 0.0) {
+            return Err(format!(
+                "mode_search.first_horizon_s = {h}: expected a duration > 0 s"
+            ));
+        }
+    }
     if !(s.reference_scale >= 1.0 && s.reference_scale <= 100.0) {
         return Err(format!(
             "mode_search.reference_scale = {}: expected in [1, 100]",
@@ -85,6 +122,8 @@ pub struct Generation {
     pub median_log_likelihood: f64,
     /// Step size after the generation's update.
     pub step: f64,
+    /// The horizon it was scored on (s of trajectory time; `None`: the whole recordings).
+    pub horizon_s: Option<f64>,
     /// Evaluations so far.
     pub evaluations: usize,
 }
@@ -355,6 +394,7 @@ mod tests {
             generations: 50,
             initial_step: 0.3,
             reference_scale: 2.0,
+            first_horizon_s: None,
         };
         assert!(check_settings(10, &good).is_ok());
         let small = ModeSearchSettings {
@@ -371,5 +411,33 @@ mod tests {
         assert!(check_settings(10, &wide)
             .unwrap_err()
             .contains("initial_step"));
+        let instant = ModeSearchSettings {
+            first_horizon_s: Some(0.0),
+            ..good
+        };
+        assert!(check_settings(10, &instant)
+            .unwrap_err()
+            .contains("mode_search.first_horizon_s = 0"));
+    }
+
+    #[test]
+    fn horizons_double_up_to_the_whole_recordings() {
+        let growing = ModeSearchSettings {
+            population: 16,
+            generations: 50,
+            initial_step: 0.3,
+            reference_scale: 2.0,
+            first_horizon_s: Some(0.5),
+        };
+        assert_eq!(
+            growing.horizons(3.0),
+            vec![Some(0.5), Some(1.0), Some(2.0), None]
+        );
+        assert_eq!(growing.horizons(0.4), vec![None]);
+        let whole = ModeSearchSettings {
+            first_horizon_s: None,
+            ..growing
+        };
+        assert_eq!(whole.horizons(3.0), vec![None]);
     }
 }

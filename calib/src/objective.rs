@@ -87,6 +87,33 @@ impl SimObjective {
         self
     }
 
+    /// The same objective on the recordings' first `seconds` only ([`Target::within`]): the
+    /// sites stay tied as on the whole recordings. `None` when a recording has no frame that
+    /// early. No observer.
+    pub fn within(&self, seconds: f64) -> Option<SimObjective> {
+        let targets = self
+            .targets
+            .iter()
+            .map(|t| t.within(seconds))
+            .collect::<Option<Vec<_>>>()?;
+        Some(Self {
+            model: self.model.clone(),
+            base: self.base,
+            names: self.names.clone(),
+            targets,
+            weights: self.weights,
+            observer: Box::new(()),
+        })
+    }
+
+    /// The longest prepared recording's duration (s of trajectory time).
+    pub fn duration(&self) -> f64 {
+        self.targets
+            .iter()
+            .map(Target::duration)
+            .fold(0.0, f64::max)
+    }
+
     /// The scene's values of the calibrated parameters (a good first point to evaluate).
     pub fn base_values(&self) -> Vec<f64> {
         self.names

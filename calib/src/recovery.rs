@@ -197,6 +197,22 @@ pub struct SampledTruthRecovery {
     pub evaluations: usize,
     /// One entry per parameter, in search order.
     pub parameters: Vec<SampledParameterRecovery>,
+    /// Per horizon of the mode search, the truth's log-likelihood beside the search's best: the
+    /// first horizon whose best falls short of the truth is where the search left its basin.
+    pub horizons: Vec<HorizonCheck>,
+}
+
+/// The mode search on one horizon against the truth.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct HorizonCheck {
+    /// The horizon (s of trajectory time; `None`: the whole recordings).
+    pub horizon_s: Option<f64>,
+    /// The truth's log-likelihood on it.
+    pub truth_log_likelihood: f64,
+    /// The best the search found on it.
+    pub best_log_likelihood: f64,
+    /// The search's generations on it.
+    pub generations: usize,
 }
 
 /// The relative change of every parameter at which a recovery probes the truth's loss: a few
@@ -249,6 +265,32 @@ pub fn recover_sampled(
     let at_truth = objective.rollouts(&[truth.to_vec(), nudged])?;
     let counts = rlpkg_replay::Likelihood::new(objective.targets(), likelihood);
     let truth_loss = crate::objective::summarise(&at_truth[0], &weights).loss;
+    let mut horizons: Vec<HorizonCheck> = Vec::new();
+    for g in &posterior.search_log {
+        match horizons.last_mut() {
+            Some(last) if last.horizon_s == g.horizon_s => {
+                last.best_log_likelihood = last.best_log_likelihood.max(g.best_log_likelihood);
+                last.generations += 1;
+            }
+            _ => horizons.push(HorizonCheck {
+                horizon_s: g.horizon_s,
+                truth_log_likelihood: f64::NAN,
+                best_log_likelihood: g.best_log_likelihood,
+                generations: 1,
+            }),
+        }
+    }
+    for check in &mut horizons {
+        check.truth_log_likelihood = match check.horizon_s {
+            None => counts.log_likelihood(&at_truth[0]),
+            Some(h) => {
+                let mut start = objective.within(h).expect("searched on");
+                let outcome = start.rollouts(&[truth.to_vec()])?.remove(0);
+                rlpkg_replay::Likelihood::new(start.targets(), likelihood)
+                    .log_likelihood(&outcome)
+            }
+        };
+    }
     let parameters = posterior
         .parameters
         .iter()
@@ -274,6 +316,7 @@ pub fn recover_sampled(
         ],
         evaluations: posterior.evaluations + posterior.polished_evaluations,
         parameters,
+        horizons,
     })
 }
 

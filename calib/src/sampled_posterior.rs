@@ -6,8 +6,8 @@
 //! * `evaluations.csv`: every simulated candidate (parameters, `objective` = its log-likelihood,
 //!   the loss, Chamfer, object and site errors), appended after each batch; a rerun into the
 //!   folder serves the logged batches again and continues exactly where it stopped;
-//! * `search.csv`: the mode search's generations (best and median log-likelihood, step size), a
-//!   header only when the config has no `mode_search`;
+//! * `search.csv`: the mode search's generations (horizon, best and median log-likelihood, step
+//!   size), a header only when the config has no `mode_search`;
 //! * `stages.csv`: the tempering steps (inverse temperature, effective sample size, acceptance);
 //! * `samples.csv`: the posterior draws ([`crate::posterior::samples_csv`], SI values);
 //! * `posterior.toml`: per parameter the median, the 90 % credible interval, its share of the box
@@ -35,7 +35,15 @@ use crate::smc::{self, SmcError, SmcSettings, Stage};
 use crate::space::ParamSpace;
 
 /// The metric columns of a posterior's evaluation log, after `objective` (the log-likelihood).
-pub const POSTERIOR_METRICS: [&str; 4] = ["loss", "chamfer_m", "object_mse_m2", "site_mse_m2"];
+/// `horizon_s` is the span of the recordings the row was scored on (a growing-horizon search's
+/// shorter starts; the recordings' duration otherwise).
+pub const POSTERIOR_METRICS: [&str; 5] = [
+    "loss",
+    "chamfer_m",
+    "object_mse_m2",
+    "site_mse_m2",
+    "horizon_s",
+];
 
 /// The files a sampled posterior writes into its output folder.
 pub const POSTERIOR_FILES: [&str; 8] = [
@@ -159,7 +167,10 @@ pub fn sample_posterior(
     let mut evaluations = 0usize;
     let mut all: Vec<LoggedEvaluation> = Vec::new();
     let mut failure: Option<SampledPosteriorError> = None;
-    let result = smc::sample(space.dim(), settings, |batch, unit| {
+    let duration = objective.duration();
+    // The growing-horizon search's shorter starts, each made once and kept.
+    let mut starts: Vec<(f64, SimObjective, Likelihood)> = Vec::new();
+    let result = smc::sample(space.dim(), settings, duration, |batch, horizon, unit| {
         let values: Vec<Vec<f64>> = unit.iter().map(|u| space.from_unit(u)).collect();
         let rows = match logged_batches.get(batch) {
             Some(rows) => {
@@ -175,8 +186,28 @@ pub fn sample_posterior(
                 rows.clone()
             }
             None => {
+                let (objective, likelihood) = match horizon {
+                    None => (&mut *objective, &likelihood),
+                    Some(h) => {
+                        if !starts.iter().any(|(s, _, _)| *s == h) {
+                            let start = objective
+                                .within(h)
+                                .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
+                            let counts = Likelihood::new(start.targets(), &settings_of_likelihood);
+                            starts.push((h, start, counts));
+                        }
+                        let (_, start, counts) = starts
+                            .iter_mut()
+                            .find(|(s, _, _)| *s == h)
+                            .expect("made above");
+                        (start, &*counts)
+                    }
+                };
                 let outcomes = objective.rollouts(&values).map_err(|e| e.to_string())?;
-                let rows = logged_rows(batch, &values, &outcomes, &likelihood, objective);
+                let mut rows = logged_rows(batch, &values, &outcomes, likelihood, objective);
+                for row in &mut rows {
+                    row.metrics.push(horizon.unwrap_or(duration));
+                }
                 if let Err(e) = log.append(&rows) {
                     failure = Some(e.into());
                     return Err("the log could not be written".into());
@@ -200,7 +231,7 @@ pub fn sample_posterior(
         .expect("a population");
     let best_row = all
         .iter()
-        .find(|r| r.params == draws[best_index])
+        .find(|r| r.params == draws[best_index] && r.metrics[4] == duration)
         .expect("every draw was evaluated");
     let mut best_point = draws[best_index].clone();
     let mut best_log_likelihood = result.log_likelihoods[best_index];
@@ -332,10 +363,12 @@ fn write_outputs(
 ) -> Result<(), SampledPosteriorError> {
     let fail = |e: crate::driver::DriverError| SampledPosteriorError::Write(e.to_string());
     let mut search =
-        String::from("generation,evaluations,best_log_likelihood,median_log_likelihood,step\n");
+        String::from("generation,evaluations,horizon_s,best_log_likelihood,median_log_likelihood,step\n");
     for (k, g) in posterior.search_log.iter().enumerate() {
+        // The whole recordings' horizon is left empty.
+        let horizon = g.horizon_s.map_or(String::new(), |h| h.to_string());
         search.push_str(&format!(
-            "{k},{},{},{},{}\n",
+            "{k},{},{horizon},{},{},{}\n",
             g.evaluations, g.best_log_likelihood, g.median_log_likelihood, g.step
         ));
     }

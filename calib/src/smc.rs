@@ -141,22 +141,26 @@ pub struct SmcResult {
     pub search: Vec<Generation>,
 }
 
-/// Samples the posterior `prior · L` on the unit cube `[0, 1]^dim` (uniform prior).
+/// Samples the posterior `prior · L` on the unit cube `[0, 1]^dim` (uniform prior), on data
+/// `duration_s` long (the horizons of a growing-horizon mode search,
+/// [`ModeSearchSettings::horizons`]).
 ///
-/// `log_likelihood(batch, points)` returns one value per point (`−∞` or NaN: zero likelihood),
-/// `batch` counting the calls from 0 in a fixed order (for logging and resuming).
+/// `log_likelihood(batch, horizon, points)` returns one value per point (`−∞` or NaN: zero
+/// likelihood) of the data up to `horizon` (`None`: all of it; the sampler itself always asks
+/// for all), `batch` counting the calls from 0 in a fixed order (for logging and resuming).
 pub fn sample(
     dim: usize,
     settings: &SmcSettings,
-    mut log_likelihood: impl FnMut(usize, &[Vec<f64>]) -> Result<Vec<f64>, String>,
+    duration_s: f64,
+    mut log_likelihood: impl FnMut(usize, Option<f64>, &[Vec<f64>]) -> Result<Vec<f64>, String>,
 ) -> Result<SmcResult, SmcError> {
     check_settings(dim, settings)?;
     let n = settings.particles;
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     let mut batch = 0usize;
     let mut evaluations = 0usize;
-    let mut evaluate = |points: &[Vec<f64>], evaluations: &mut usize| {
-        let values = log_likelihood(batch, points).map_err(SmcError::Likelihood)?;
+    let mut evaluate = |horizon: Option<f64>, points: &[Vec<f64>], evaluations: &mut usize| {
+        let values = log_likelihood(batch, horizon, points).map_err(SmcError::Likelihood)?;
         batch += 1;
         if values.len() != points.len() {
             return Err(SmcError::Likelihood(format!(
@@ -175,9 +179,14 @@ pub fn sample(
     let reference = match &settings.mode_search {
         None => None,
         Some(mode) => {
-            let cma = search_mode(dim, mode, &mut rng, &mut search, &mut |p| {
-                evaluate(p, &mut evaluations)
-            })?;
+            let cma = search_mode(
+                dim,
+                mode,
+                &mode.horizons(duration_s),
+                &mut rng,
+                &mut search,
+                &mut |h, p| evaluate(h, p, &mut evaluations),
+            )?;
             let covariance = cma.covariance() * mode.reference_scale.powi(2);
             Some(Reference::new(cma.mean(), covariance, &mut rng)?)
         }
@@ -189,7 +198,7 @@ pub fn sample(
             .collect(),
         Some(r) => r.draw(n, &mut rng)?,
     };
-    let mut ll = evaluate(&particles, &mut evaluations)?;
+    let mut ll = evaluate(None, &particles, &mut evaluations)?;
     let mut lq: Vec<f64> = particles.iter().map(|p| log_reference(p)).collect();
     let mut beta = 0.0;
     let mut scale = 2.38 / (dim as f64).sqrt();
@@ -231,7 +240,7 @@ pub fn sample(
             &mut scale,
             settings.moves,
             &mut rng,
-            &mut |p| evaluate(p, &mut evaluations),
+            &mut |p| evaluate(None, p, &mut evaluations),
         )?;
         stages.push(Stage {
             beta,
@@ -255,7 +264,7 @@ pub fn sample(
             &mut scale,
             settings.final_moves,
             &mut rng,
-            &mut |p| evaluate(p, &mut evaluations),
+            &mut |p| evaluate(None, p, &mut evaluations),
         )?;
         stages.push(Stage {
             beta: 1.0,
@@ -280,28 +289,32 @@ pub fn sample(
 fn search_mode(
     dim: usize,
     settings: &ModeSearchSettings,
+    horizons: &[Option<f64>],
     rng: &mut ChaCha8Rng,
     search: &mut Vec<Generation>,
-    evaluate: &mut Evaluate,
+    evaluate: &mut SearchEvaluate,
 ) -> Result<CmaEs, SmcError> {
     let mut cma = CmaEs::new(&vec![0.5; dim], settings.initial_step, settings.population);
     let mut evaluations = 0;
-    for _ in 0..settings.generations {
-        let points = cma.ask(rng);
-        let values = evaluate(&points)?;
-        evaluations += points.len();
-        cma.tell(&points, &values);
-        let mut sorted = values.clone();
-        sorted.sort_by(|a, b| b.total_cmp(a));
-        let (best, median) = (sorted[0], sorted[sorted.len() / 2]);
-        search.push(Generation {
-            best_log_likelihood: best,
-            median_log_likelihood: median,
-            step: cma.step(),
-            evaluations,
-        });
-        if best - median < cmaes::CONVERGED_SPREAD_PER_DIM * dim as f64 {
-            break;
+    for &horizon in horizons {
+        for _ in 0..settings.generations {
+            let points = cma.ask(rng);
+            let values = evaluate(horizon, &points)?;
+            evaluations += points.len();
+            cma.tell(&points, &values);
+            let mut sorted = values.clone();
+            sorted.sort_by(|a, b| b.total_cmp(a));
+            let (best, median) = (sorted[0], sorted[sorted.len() / 2]);
+            search.push(Generation {
+                best_log_likelihood: best,
+                median_log_likelihood: median,
+                step: cma.step(),
+                horizon_s: horizon,
+                evaluations,
+            });
+            if best - median < cmaes::CONVERGED_SPREAD_PER_DIM * dim as f64 {
+                break;
+            }
         }
     }
     Ok(cma)
@@ -533,6 +546,9 @@ struct Tempered<'a> {
 /// Evaluates a batch of points (the sampler's view of the likelihood).
 type Evaluate<'a> = dyn FnMut(&[Vec<f64>]) -> Result<Vec<f64>, SmcError> + 'a;
 
+/// The mode search's likelihood: points scored on the data up to a horizon (`None`: all).
+type SearchEvaluate<'a> = dyn FnMut(Option<f64>, &[Vec<f64>]) -> Result<Vec<f64>, SmcError> + 'a;
+
 /// Random-walk Metropolis steps of every particle at `beta` on `q^(1−β) L^β` (`ll`, `lq`: the
 /// particles' log-likelihoods and log reference densities); returns the acceptance rate and adapts
 /// `scale` after each step towards an acceptance of 0.25.
@@ -612,7 +628,7 @@ mod tests {
 
     #[test]
     fn recovers_a_known_two_dimensional_posterior() {
-        let result = sample(2, &settings(3), |_, points| {
+        let result = sample(2, &settings(3), 1.0, |_, _, points| {
             Ok(points.iter().map(|p| gaussian(p)).collect())
         })
         .unwrap();
@@ -656,7 +672,7 @@ mod tests {
             ..settings(9)
         };
         let mut logged: Vec<(Vec<Vec<f64>>, Vec<f64>)> = Vec::new();
-        let whole = sample(2, &small, |batch, points| {
+        let whole = sample(2, &small, 1.0, |batch, _, points| {
             assert_eq!(batch, logged.len());
             let values = ll(points);
             logged.push((points.to_vec(), values.clone()));
@@ -666,7 +682,7 @@ mod tests {
         assert!(logged.len() > 5);
         // Interrupted after three batches...
         let mut partial = Vec::new();
-        let stopped = sample(2, &small, |batch, points| {
+        let stopped = sample(2, &small, 1.0, |batch, _, points| {
             if batch == 3 {
                 return Err("stopped".into());
             }
@@ -675,7 +691,7 @@ mod tests {
         });
         assert!(matches!(stopped, Err(SmcError::Likelihood(_))));
         // ...and resumed: the logged batches are served again, asked with the same points.
-        let resumed = sample(2, &small, |batch, points| {
+        let resumed = sample(2, &small, 1.0, |batch, _, points| {
             if batch < partial.len() {
                 assert_eq!(points, &logged[batch].0[..], "batch {batch}");
                 return Ok(partial[batch].clone());
@@ -684,7 +700,7 @@ mod tests {
         })
         .unwrap();
         assert_eq!(resumed, whole);
-        let other = sample(2, &SmcSettings { seed: 10, ..small }, |_, p| Ok(ll(p))).unwrap();
+        let other = sample(2, &SmcSettings { seed: 10, ..small }, 1.0, |_, _, p| Ok(ll(p))).unwrap();
         assert_ne!(other.draws, whole.draws);
     }
 
@@ -697,10 +713,11 @@ mod tests {
                 generations: 100,
                 initial_step: 0.3,
                 reference_scale: 2.0,
+                first_horizon_s: None,
             }),
             ..settings(4)
         };
-        let result = sample(2, &searched, |_, points| {
+        let result = sample(2, &searched, 1.0, |_, _, points| {
             Ok(points.iter().map(|p| gaussian(p)).collect())
         })
         .unwrap();
@@ -746,10 +763,11 @@ mod tests {
                 generations: 300,
                 initial_step: 0.3,
                 reference_scale: 2.0,
+                first_horizon_s: None,
             }),
             ..settings(2)
         };
-        let result = sample(10, &searched, |_, points| {
+        let result = sample(10, &searched, 1.0, |_, _, points| {
             Ok(points.iter().map(|p| ll(p)).collect())
         })
         .unwrap();
@@ -764,14 +782,63 @@ mod tests {
     }
 
     #[test]
+    fn a_growing_horizon_finds_a_narrow_mode_that_a_search_on_the_whole_data_misses() {
+        // On the whole data: a narrow peak (sd 0.01) at `c`, and a broad lower basin around `d`
+        // that fills the rest of the box, as a film whose replays part beyond a basin's edge.
+        // Over shorter starts the data only say "near c", more sharply the longer the start
+        // (sd 0.08, 0.04, 0.02 at 1/8, 1/4, 1/2 of the data).
+        let (c, d) = ([0.23, 0.71, 0.37, 0.62], [0.75, 0.25, 0.8, 0.2]);
+        let sq = |p: &[f64], centre: &[f64; 4], sd: f64| {
+            p.iter()
+                .zip(centre)
+                .map(|(x, m)| ((x - m) / sd).powi(2))
+                .sum::<f64>()
+        };
+        let ll = |horizon: Option<f64>, p: &[f64]| match horizon {
+            Some(h) => -0.5 * sq(p, &c, 0.01 / h),
+            None => (-0.5 * sq(p, &c, 0.01)).max(-30.0 - 0.5 * sq(p, &d, 0.3)),
+        };
+        let searched = |first_horizon_s| SmcSettings {
+            particles: 64,
+            moves: 4,
+            final_moves: 4,
+            mode_search: Some(ModeSearchSettings {
+                population: 12,
+                generations: 100,
+                initial_step: 0.3,
+                reference_scale: 2.0,
+                first_horizon_s,
+            }),
+            ..settings(5)
+        };
+        let run = |settings: &SmcSettings| {
+            let mut horizons = Vec::new();
+            let result = sample(4, settings, 1.0, |_, h, points| {
+                horizons.push(h);
+                Ok(points.iter().map(|p| ll(h, p)).collect())
+            })
+            .unwrap();
+            (result, horizons)
+        };
+        let near_c = |p: &[f64]| p.iter().zip(&c).all(|(x, m)| (x - m).abs() < 0.04);
+        let (growing, horizons) = run(&searched(Some(0.125)));
+        assert_eq!(horizons[0], Some(0.125));
+        assert!(horizons.contains(&Some(0.5)) && horizons.last() == Some(&None));
+        assert!(growing.search.iter().any(|g| g.horizon_s.is_none()));
+        assert!(growing.draws.iter().all(|p| near_c(p)), "{:?}", growing.draws[0]);
+        let (whole, _) = run(&searched(None));
+        assert!(!whole.draws.iter().any(|p| near_c(p)), "{:?}", whole.draws[0]);
+    }
+
+    #[test]
     fn zero_likelihood_everywhere_and_bad_settings_are_errors() {
-        let none = sample(2, &settings(0), |_, p| Ok(vec![f64::NEG_INFINITY; p.len()]));
+        let none = sample(2, &settings(0), 1.0, |_, _, p| Ok(vec![f64::NEG_INFINITY; p.len()]));
         assert!(matches!(none, Err(SmcError::Degenerate { stage: 0 })));
         let few = SmcSettings {
             particles: 5,
             ..settings(0)
         };
-        let err = sample(2, &few, |_, p| Ok(vec![0.0; p.len()])).unwrap_err();
+        let err = sample(2, &few, 1.0, |_, _, p| Ok(vec![0.0; p.len()])).unwrap_err();
         assert!(err.to_string().contains("particles = 5"), "{err}");
     }
 }

@@ -213,6 +213,23 @@ impl Target {
         site_of_track.values().filter(|s| s.is_some()).count()
     }
 
+    /// The same recording compared only up to `seconds` of trajectory time (the frames with
+    /// `t <= seconds`, their tracks, sites and phases), or `None` when no frame is that early.
+    pub fn within(&self, seconds: f64) -> Option<Target> {
+        let frames = self.times.iter().take_while(|&&t| t <= seconds).count();
+        if frames == 0 {
+            return None;
+        }
+        let mut short = self.clone();
+        short.times.truncate(frames);
+        short.markers.truncate(frames);
+        short.marker_tracks.truncate(frames);
+        short.marker_sites.truncate(frames);
+        short.phases.truncate(frames);
+        short.object.truncate(frames);
+        Some(short)
+    }
+
     /// Gives every compared marker its track ([`rlpkg_mocap::track_markers`] over the compared
     /// frames), once.
     pub fn track(&mut self) {
@@ -282,6 +299,32 @@ mod tests {
         assert_eq!(s.package.grid, [11, 13]);
         assert!((s.dt() - 1e-4).abs() < 1e-9);
         assert!(load_scene("nonexistent.toml", None, None).is_err());
+    }
+
+    #[test]
+    fn a_target_within_a_time_is_the_target_prepared_up_to_it() {
+        let root =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
+        let trajectory = rlpkg_mocap::Dataset::open(&root)
+            .unwrap()
+            .load("HHHHH")
+            .unwrap();
+        let mut whole = Target::new(&trajectory, None, false).unwrap();
+        whole.track();
+        let mut prepared = Target::new(&trajectory, Some(1.5), false).unwrap();
+        prepared.track();
+        let short = whole.within(1.5).unwrap();
+        assert!(short.times.len() < whole.times.len());
+        assert_eq!(short.times, prepared.times);
+        assert_eq!(short.markers, prepared.markers);
+        assert_eq!(short.phases, prepared.phases);
+        assert_eq!(short.object, prepared.object);
+        // Tracks are made over the whole recording, so only their count per frame is compared.
+        assert_eq!(
+            short.marker_tracks.iter().map(Vec::len).collect::<Vec<_>>(),
+            prepared.marker_tracks.iter().map(Vec::len).collect::<Vec<_>>()
+        );
+        assert!(whole.within(-1.0).is_none());
     }
 
     #[test]

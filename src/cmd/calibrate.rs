@@ -239,8 +239,11 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
 /// "CMA-ES mode search (P x at most G generations), then " when the sampler has one.
 pub(crate) fn mode_search_text(smc: &rlpkg_calib::smc::SmcSettings) -> String {
     smc.mode_search.map_or(String::new(), |m| {
+        let horizon = m.first_horizon_s.map_or(String::new(), |h| {
+            format!(" per horizon, from the first {h} s doubling to the whole recordings")
+        });
         format!(
-            "CMA-ES mode search ({} x at most {} generations), then ",
+            "CMA-ES mode search ({} x at most {} generations{horizon}), then ",
             m.population, m.generations
         )
     })

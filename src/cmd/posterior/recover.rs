@@ -250,6 +250,15 @@ fn run_sampled(
             recovered.evaluations,
             truth_started.elapsed().as_secs_f64()
         );
+        for h in &recovered.horizons {
+            println!(
+                "  search on {:>9}: {:>3} generation(s), best log-likelihood {:.6e} (truth's {:.6e})",
+                h.horizon_s.map_or("the whole".to_string(), |s| format!("{s} s")),
+                h.generations,
+                h.best_log_likelihood,
+                h.truth_log_likelihood
+            );
+        }
         recoveries.push(recovered);
     }
     let wall_s = started.elapsed().as_secs_f64();
