@@ -8,6 +8,7 @@
 //! * [`fisher`] — identifiability at a fit: the Fisher information's eigen-directions;
 //! * [`fingerprint`] — the objective a calibration folder fits, checked when it is resumed;
 //! * [`posterior`] — an approximate posterior from a calibration's evaluations (BOLFI);
+//! * [`posterior_files`] — a posterior folder's `samples.csv` and `summary.json`, read and written;
 //! * [`recovery`] — parameter recovery: calibrating synthetic recordings of known parameters back;
 //! * [`sampled_posterior`] — a calibration that returns the posterior (SMC on the simulator);
 //! * [`smc`] — adaptive tempered sequential Monte Carlo: a posterior evaluated by the simulator;
@@ -32,6 +33,7 @@ pub mod mcmc;
 pub mod objective;
 pub mod polish;
 pub mod posterior;
+pub mod posterior_files;
 pub mod recovery;
 pub mod sampled_posterior;
 pub mod smc;

@@ -286,8 +286,7 @@ pub fn recover_sampled(
             Some(h) => {
                 let mut start = objective.within(h).expect("searched on");
                 let outcome = start.rollouts(&[truth.to_vec()])?.remove(0);
-                rlpkg_replay::Likelihood::new(start.targets(), likelihood)
-                    .log_likelihood(&outcome)
+                rlpkg_replay::Likelihood::new(start.targets(), likelihood).log_likelihood(&outcome)
             }
         };
     }

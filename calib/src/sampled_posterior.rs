@@ -9,7 +9,7 @@
 //! * `search.csv`: the mode search's generations (horizon, best and median log-likelihood, step
 //!   size), a header only when the config has no `mode_search`;
 //! * `stages.csv`: the tempering steps (inverse temperature, effective sample size, acceptance);
-//! * `samples.csv`: the posterior draws ([`crate::posterior::samples_csv`], SI values);
+//! * `samples.csv`: the posterior draws ([`crate::posterior_files`], SI values);
 //! * `posterior.toml`: per parameter the median, the 90 % credible interval, its share of the box
 //!   and the best draw's value; the counts and the evidence;
 //! * `best.toml`: the draw of highest likelihood, or the point `smc.polish_iterations`
@@ -30,7 +30,8 @@ use crate::evallog::{EvaluationLog, LogError, LoggedEvaluation};
 use crate::fisher::{fisher_information, FisherAnalysis};
 use crate::objective::{summarise, SimObjective};
 use crate::polish::polish;
-use crate::posterior::{quantile, samples_csv};
+use crate::posterior::quantile;
+use crate::posterior_files::samples_csv;
 use crate::smc::{self, SmcError, SmcSettings, Stage};
 use crate::space::ParamSpace;
 
@@ -362,8 +363,9 @@ fn write_outputs(
     posterior: &SampledPosterior,
 ) -> Result<(), SampledPosteriorError> {
     let fail = |e: crate::driver::DriverError| SampledPosteriorError::Write(e.to_string());
-    let mut search =
-        String::from("generation,evaluations,horizon_s,best_log_likelihood,median_log_likelihood,step\n");
+    let mut search = String::from(
+        "generation,evaluations,horizon_s,best_log_likelihood,median_log_likelihood,step\n",
+    );
     for (k, g) in posterior.search_log.iter().enumerate() {
         // The whole recordings' horizon is left empty.
         let horizon = g.horizon_s.map_or(String::new(), |h| h.to_string());

@@ -700,7 +700,10 @@ mod tests {
         })
         .unwrap();
         assert_eq!(resumed, whole);
-        let other = sample(2, &SmcSettings { seed: 10, ..small }, 1.0, |_, _, p| Ok(ll(p))).unwrap();
+        let other = sample(2, &SmcSettings { seed: 10, ..small }, 1.0, |_, _, p| {
+            Ok(ll(p))
+        })
+        .unwrap();
         assert_ne!(other.draws, whole.draws);
     }
 
@@ -825,14 +828,24 @@ mod tests {
         assert_eq!(horizons[0], Some(0.125));
         assert!(horizons.contains(&Some(0.5)) && horizons.last() == Some(&None));
         assert!(growing.search.iter().any(|g| g.horizon_s.is_none()));
-        assert!(growing.draws.iter().all(|p| near_c(p)), "{:?}", growing.draws[0]);
+        assert!(
+            growing.draws.iter().all(|p| near_c(p)),
+            "{:?}",
+            growing.draws[0]
+        );
         let (whole, _) = run(&searched(None));
-        assert!(!whole.draws.iter().any(|p| near_c(p)), "{:?}", whole.draws[0]);
+        assert!(
+            !whole.draws.iter().any(|p| near_c(p)),
+            "{:?}",
+            whole.draws[0]
+        );
     }
 
     #[test]
     fn zero_likelihood_everywhere_and_bad_settings_are_errors() {
-        let none = sample(2, &settings(0), 1.0, |_, _, p| Ok(vec![f64::NEG_INFINITY; p.len()]));
+        let none = sample(2, &settings(0), 1.0, |_, _, p| {
+            Ok(vec![f64::NEG_INFINITY; p.len()])
+        });
         assert!(matches!(none, Err(SmcError::Degenerate { stage: 0 })));
         let few = SmcSettings {
             particles: 5,

@@ -322,7 +322,11 @@ mod tests {
         // Tracks are made over the whole recording, so only their count per frame is compared.
         assert_eq!(
             short.marker_tracks.iter().map(Vec::len).collect::<Vec<_>>(),
-            prepared.marker_tracks.iter().map(Vec::len).collect::<Vec<_>>()
+            prepared
+                .marker_tracks
+                .iter()
+                .map(Vec::len)
+                .collect::<Vec<_>>()
         );
         assert!(whole.within(-1.0).is_none());
     }

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{Params, PARAM_NAMES};
+use crate::config::PARAM_NAMES;
 use crate::episode::EpisodeSpec;
 use crate::error::SimError;
 
@@ -59,100 +59,14 @@ pub struct Randomization {
 }
 
 /// Draws of material parameters from a calibration posterior: absolute SI values, one row per
-/// draw, one column per named parameter.
+/// draw, one column per named parameter (read from a posterior's `samples.csv` by
+/// `rlpkg_calib::posterior_files`, which checks every value against [`crate::Params::range`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PosteriorDraws {
     /// Parameter names of the columns (`k_tri_e`, ..., [`PARAM_NAMES`]).
     pub names: Vec<String>,
     /// The draws, `names.len()` values each (SI).
     pub rows: Vec<Vec<f32>>,
-}
-
-impl PosteriorDraws {
-    /// Parses a `samples.csv` of `rlpkg posterior`: a header of parameter names, then one row of
-    /// values per draw, each finite and > 0 (`mu_con` >= 0). `file` names it in messages, which
-    /// give the line and column of a bad cell.
-    pub fn parse_csv(text: &str, file: &str) -> Result<Self, SimError> {
-        let bad =
-            |line: usize, column: usize, key: &str, value: &str, expected: &str| SimError::Range {
-                file: format!("{file} line {line} column {column}"),
-                key: key.to_string(),
-                value: value.to_string(),
-                expected: expected.to_string(),
-            };
-        // A spreadsheet's UTF-8 export starts with a byte-order mark, which is not part of a name.
-        let mut lines = text.strip_prefix('\u{feff}').unwrap_or(text).lines();
-        let header = lines.next().unwrap_or("");
-        let mut names: Vec<String> = Vec::new();
-        for (c, name) in header.split(',').map(str::trim).enumerate() {
-            if !PARAM_NAMES.contains(&name) {
-                return Err(bad(
-                    1,
-                    c + 1,
-                    "header",
-                    &format!("{name:?}"),
-                    "a parameter name such as k_tri_e or mu_con",
-                ));
-            }
-            if names.iter().any(|n| n == name) {
-                return Err(bad(
-                    1,
-                    c + 1,
-                    "header",
-                    &format!("{name:?}"),
-                    "each parameter named once",
-                ));
-            }
-            names.push(name.to_string());
-        }
-        let mut rows = Vec::new();
-        for (i, line) in lines.enumerate() {
-            let number = i + 2;
-            if line.trim().is_empty() {
-                continue;
-            }
-            let cells: Vec<&str> = line.split(',').map(str::trim).collect();
-            if cells.len() != names.len() {
-                return Err(bad(
-                    number,
-                    cells.len().min(names.len()) + 1,
-                    "row",
-                    &format!("{} values", cells.len()),
-                    &format!("{} values, one per header name", names.len()),
-                ));
-            }
-            let mut row = Vec::with_capacity(names.len());
-            for (c, (cell, name)) in cells.iter().zip(&names).enumerate() {
-                let (lo, hi) = Params::range(name).expect("a header name is a parameter");
-                // A draw is a material: zero stiffness is no film (mu_con = 0 is frictionless).
-                let low_ok = |v: f32| if name == "mu_con" { v >= lo } else { v > lo };
-                match cell.parse::<f32>().ok() {
-                    Some(v) if v.is_finite() && low_ok(v) && v <= hi => row.push(v),
-                    _ => {
-                        let bound = if name == "mu_con" { "[" } else { "(" };
-                        let low = if lo == 0.0 {
-                            "0".to_string()
-                        } else {
-                            format!("{lo:e}")
-                        };
-                        let expected = format!("a number in {bound}{low}, {hi:e}]");
-                        return Err(bad(number, c + 1, name, cell, &expected));
-                    }
-                }
-            }
-            rows.push(row);
-        }
-        if rows.is_empty() {
-            return Err(bad(
-                2,
-                1,
-                "rows",
-                "none",
-                "at least one draw below the header",
-            ));
-        }
-        Ok(PosteriorDraws { names, rows })
-    }
 }
 
 fn range_ok(r: [f32; 2], lo: f32, hi: f32) -> bool {
@@ -376,8 +290,18 @@ mod tests {
     }
 
     fn table() -> Arc<PosteriorDraws> {
-        let text = "k_tri_e,k_spr_e,mu_con\n1000,20,0.5\n2000,30,0.6\n3000,40,0.7\n4000,50,0.8\n";
-        Arc::new(PosteriorDraws::parse_csv(text, "samples.csv").unwrap())
+        Arc::new(PosteriorDraws {
+            names: vec!["k_tri_e".into(), "k_spr_e".into(), "mu_con".into()],
+            rows: (1..=4)
+                .map(|k| {
+                    vec![
+                        1000.0 * k as f32,
+                        10.0 + 10.0 * k as f32,
+                        0.4 + 0.1 * k as f32,
+                    ]
+                })
+                .collect(),
+        })
     }
 
     #[test]
@@ -454,43 +378,6 @@ mod tests {
             assert!((ratio - 2.0).abs() < 1e-6, "seed {seed}: {ratio}");
             assert_eq!(b.params.mu_con, a.params.mu_con);
         }
-    }
-
-    #[test]
-    fn posterior_tables_name_the_line_and_column_of_a_bad_cell() {
-        for (text, needles) in [
-            (
-                "k_tri_e,k_bogus\n1,2\n",
-                &["samples.csv line 1 column 2", "k_bogus"][..],
-            ),
-            (
-                "k_tri_e,mu_con\n1,0.5\n2,abc\n",
-                &["line 3 column 2", "abc"],
-            ),
-            (
-                "k_tri_e,mu_con\n-1,0.5\n",
-                &["line 2 column 1", "k_tri_e", "(0, 1e10]"],
-            ),
-            (
-                "k_tri_e,mu_con\n1,1e6\n",
-                &["line 2 column 2", "mu_con", "1e6", "[0, 1e2]"],
-            ),
-            ("k_tri_e,mu_con\n1,inf\n", &["line 2 column 2", "mu_con"]),
-            ("k_tri_e,mu_con\n1\n", &["line 2", "2 values"]),
-            ("k_tri_e,mu_con\n", &["at least one draw"]),
-        ] {
-            let err = PosteriorDraws::parse_csv(text, "samples.csv")
-                .unwrap_err()
-                .to_string();
-            for needle in needles {
-                assert!(err.contains(needle), "{text:?}: {err}");
-            }
-        }
-        // mu_con may be 0 (a frictionless contact); stiffnesses may not.
-        PosteriorDraws::parse_csv("k_tri_e,mu_con\n1,0\n", "samples.csv").unwrap();
-        // A byte-order mark (a spreadsheet's UTF-8 export) is not part of the first name.
-        let marked = PosteriorDraws::parse_csv("\u{feff}k_tri_e,mu_con\n1,0\n", "samples.csv");
-        assert_eq!(marked.unwrap().names, ["k_tri_e", "mu_con"]);
     }
 
     #[test]

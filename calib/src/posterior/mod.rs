@@ -52,7 +52,7 @@ use serde::Serialize;
 mod summary;
 mod surrogate;
 
-pub use summary::{profiles_csv, quantile, samples_csv};
+pub use summary::{profiles_csv, quantile};
 pub use surrogate::log_normal_cdf;
 
 use summary::{profiles, summarise};

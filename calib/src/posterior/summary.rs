@@ -111,18 +111,6 @@ pub fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[below] + (position - below as f64) * (sorted[above] - sorted[below])
 }
 
-/// `samples.csv`: a header of parameter names, then one row per draw (SI values).
-pub fn samples_csv(space: &ParamSpace, draws: &[Vec<f64>]) -> String {
-    let mut text = space.names().join(",");
-    text.push('\n');
-    for draw in draws {
-        let cells: Vec<String> = draw.iter().map(f64::to_string).collect();
-        text.push_str(&cells.join(","));
-        text.push('\n');
-    }
-    text
-}
-
 /// `profiles.csv`: `parameter,value,surrogate_loss`, one row per parameter and grid value.
 pub fn profiles_csv(profiles: &[Profile]) -> String {
     let mut text = String::from("parameter,value,surrogate_loss\n");

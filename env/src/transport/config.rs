@@ -4,10 +4,11 @@
 //! values are rejected with the file, the key and what was expected. [`load_scene`] resolves the
 //! scene the table names.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
-use rlpkg_sim::{PosteriorDraws, Randomization, SceneConfig, ToolLimits};
+use rlpkg_calib::posterior_files::{self, Samples};
+use rlpkg_sim::{Randomization, SceneConfig, ToolLimits};
 use serde::{Deserialize, Serialize};
 
 use super::path::ToolPeaks;
@@ -252,116 +253,20 @@ fn check(source: &str, key: &str, value: f64, low: f64, high: f64) -> Result<(),
     }
 }
 
-/// Largest posterior `samples.csv` read (bytes): checked before the file is read.
-pub const MAX_POSTERIOR_BYTES: u64 = 64 << 20;
-
-/// The file of an `rlpkg posterior` folder holding the draws.
-const SAMPLES_FILE: &str = "samples.csv";
-/// The file of an `rlpkg posterior` folder naming the calibration config it came from.
-const SUMMARY_FILE: &str = "summary.json";
-
-/// The `samples.csv` and, when there is one, the `summary.json` of the posterior `given` names
-/// (its folder, its summary or its samples); what was expected when there is none.
-fn posterior_files(given: &Path) -> Result<(PathBuf, Option<PathBuf>), String> {
-    let folder = if given.is_dir() {
-        given.to_path_buf()
-    } else if given.is_file() {
-        given.parent().unwrap_or(Path::new(".")).to_path_buf()
-    } else {
-        return Err(format!(
-            "an `rlpkg posterior` output folder, its {SUMMARY_FILE} or its {SAMPLES_FILE} \
-             (not found)"
-        ));
-    };
-    let named = |name: &str| given.file_name().is_some_and(|f| f == name);
-    let samples = if given.is_file() && !named(SUMMARY_FILE) {
-        given.to_path_buf()
-    } else {
-        folder.join(SAMPLES_FILE)
-    };
-    let summary = folder.join(SUMMARY_FILE);
-    let summary = (named(SUMMARY_FILE) || summary.is_file()).then_some(summary);
-    Ok((samples, summary))
-}
-
-/// The text of `path`, refused unread when larger than `limit` bytes; what was expected if not.
-fn read_limited(path: &Path, limit: u64) -> Result<String, String> {
-    let size = std::fs::metadata(path)
-        .map_err(|e| format!("a readable posterior file ({e})"))?
-        .len();
-    if size > limit {
-        return Err(format!(
-            "a posterior file of at most {} MiB ({size} bytes)",
-            limit >> 20
-        ));
-    }
-    std::fs::read_to_string(path).map_err(|e| format!("a readable UTF-8 posterior file ({e})"))
-}
-
-/// Refuses the posterior of `summary` unless the calibration it records (`config` of the
-/// summary: its `[sim] preset`, `between` and `dt`) simulated the grid and the integrator
-/// (solver, substep rate, sweeps) of `config.scene`: its draws are parameters of that film at
-/// that step. The scenes may differ otherwise (a calibrated scene is its calibration's preset
-/// with the fitted values, and a transport scene may change the seal or the disc's hold).
+/// Refuses the posterior of `summary` unless the calibration it records simulated the grid and
+/// the integrator (solver, substep rate, sweeps) of `config.scene`
+/// ([`posterior_files::calibrated_scene`]): its draws are parameters of that film at that step.
+/// The scenes may differ otherwise (a calibrated scene is its calibration's preset with the
+/// fitted values, and a transport scene may change the seal or the disc's hold).
 fn check_posterior_scene(
     config: &TransportConfig,
     summary: &Path,
     source: &str,
 ) -> Result<(), EnvError> {
     let key = "randomization.package.posterior";
+    let calibrated = posterior_files::calibrated_scene(summary)
+        .map_err(|e| bad(source, key, summary.display(), &e.to_string()))?;
     let fail = |expected: String| bad(source, key, summary.display(), &expected);
-    let text = read_limited(summary, 1 << 20).map_err(&fail)?;
-    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
-        fail(format!(
-            "a {SUMMARY_FILE} of `rlpkg posterior` (not JSON: {e})"
-        ))
-    })?;
-    // Named relative to the repository, found from the summary's folder upwards as well.
-    let calibration = value["config"]
-        .as_str()
-        .map(|c| rlpkg_toml_input::find_relative(Path::new(c), summary));
-    let calibration = calibration.ok_or_else(|| {
-        fail(format!(
-            "a {SUMMARY_FILE} naming its calibration config (`config`), as `rlpkg posterior` \
-             writes"
-        ))
-    })?;
-    let table: toml::Table = std::fs::read_to_string(&calibration)
-        .map_err(|e| e.to_string())
-        .and_then(|t| toml::from_str(&t).map_err(|e| e.to_string()))
-        .map_err(|e| {
-            fail(format!(
-                "a readable calibration config {} (named by `config`): {e}",
-                calibration.display()
-            ))
-        })?;
-    let sim = table.get("sim").and_then(|v| v.as_table());
-    let preset = sim
-        .and_then(|t| t.get("preset"))
-        .and_then(|v| v.as_str())
-        .ok_or_else(|| {
-            fail(format!(
-                "a calibration config with a [sim] preset ({})",
-                calibration.display()
-            ))
-        })?;
-    let between = sim
-        .and_then(|t| t.get("between"))
-        .and_then(|v| v.as_integer())
-        .map(|p| p.clamp(0, 8) as usize);
-    let dt = sim.and_then(|t| t.get("dt")).and_then(|v| v.as_float());
-    let preset_path = rlpkg_toml_input::find_relative(Path::new(preset), &calibration);
-    let calibrated = rlpkg_replay::load_scene(
-        &preset_path.to_string_lossy(),
-        Some(between.unwrap_or(1)),
-        dt,
-    )
-    .map_err(|e| {
-        fail(format!(
-            "a calibration config whose scene loads ({}: [sim] preset {preset:?}: {e})",
-            calibration.display()
-        ))
-    })?;
     let scene = load_scene(config, source)?;
     // The draws are film and contact parameters of that grid at that step: the same values on
     // another grid or integrator are another material, and may not even be stable there.
@@ -380,10 +285,9 @@ fn check_posterior_scene(
     };
     if let Some(what) = differs {
         return Err(fail(format!(
-            "a posterior of a calibration on the grid and integrator of transport.scene {:?}; {} \
-             calibrated [sim] preset {preset:?} with {what}",
+            "a posterior of a calibration on the grid and integrator of transport.scene {:?}; its \
+             calibration simulated {what}",
             config.scene,
-            calibration.display()
         )));
     }
     Ok(())
@@ -419,21 +323,18 @@ impl TransportConfig {
             return Ok(());
         };
         let key = "randomization.package.posterior";
-        let (samples, summary) = posterior_files(&given)
-            .map_err(|expected| bad(source, key, given.display(), &expected))?;
-        let text = read_limited(&samples, MAX_POSTERIOR_BYTES)
-            .map_err(|expected| bad(source, key, samples.display(), &expected))?;
-        let draws =
-            PosteriorDraws::parse_csv(&text, &samples.display().to_string()).map_err(|e| {
-                EnvError::ConfigParse {
-                    file: source.to_string(),
-                    message: format!("transport.{key}: {e}"),
-                }
-            })?;
-        if let Some(summary) = summary {
+        let files = posterior_files::locate(&given).map_err(|e| EnvError::ConfigParse {
+            file: source.to_string(),
+            message: format!("transport.{key}: {e}"),
+        })?;
+        let samples = Samples::read(&files.samples).map_err(|e| EnvError::ConfigParse {
+            file: source.to_string(),
+            message: format!("transport.{key}: {e}"),
+        })?;
+        if let Some(summary) = files.summary {
             check_posterior_scene(self, &summary, source)?;
         }
-        self.randomization.package.posterior_draws = Some(Arc::new(draws));
+        self.randomization.package.posterior_draws = Some(Arc::new(samples.to_draws()));
         Ok(())
     }
 
@@ -809,6 +710,8 @@ pub fn load_scene(config: &TransportConfig, source: &str) -> Result<SceneConfig,
 
 #[cfg(test)]
 mod tests {
+    use std::path::PathBuf;
+
     use super::*;
     use crate::transport::test_support::{config, sensors_table, test_table};
     use crate::transport::Transport;
@@ -1120,7 +1023,12 @@ mod tests {
         let folder = dir.join("posterior");
         std::fs::create_dir_all(&folder).unwrap();
         let calibration = dir.join("calibrate.toml");
-        std::fs::write(&calibration, format!("[sim]\npreset = {preset:?}\n{sim}\n")).unwrap();
+        let config = format!(
+            "data = \"data\"\nout_dir = \"out\"\n[sim]\npreset = {preset:?}\n{sim}\n\
+             [smc]\nparticles = 8\nmoves = 1\n\
+             [[param]]\nname = \"k_tri_e\"\nlower = 1e3\nupper = 1e5\n"
+        );
+        std::fs::write(&calibration, config).unwrap();
         std::fs::write(folder.join("samples.csv"), samples).unwrap();
         let summary = serde_json::json!({ "config": calibration.display().to_string() });
         std::fs::write(folder.join("summary.json"), summary.to_string()).unwrap();
@@ -1244,6 +1152,7 @@ mod tests {
         for (sim, differs) in [
             ("between = 2", "grid [16, 19]"),
             ("between = 1\ndt = 0.001", "[integrator]"),
+            ("between = 1\niterations = 48", "iterations: 48"),
         ] {
             let err = refusal("physical", sim);
             assert!(

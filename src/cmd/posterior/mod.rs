@@ -23,10 +23,8 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use rlpkg_calib::config::CalibrateConfig;
-use rlpkg_calib::posterior::{
-    self, Posterior, PosteriorError, PosteriorSettings, PosteriorSummary, Threshold,
-};
-use serde::Serialize;
+use rlpkg_calib::posterior::{self, Posterior, PosteriorError, PosteriorSettings, Threshold};
+use rlpkg_calib::posterior_files::{self, SAMPLES_FILE, SUMMARY_FILE};
 
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
@@ -106,20 +104,8 @@ pub struct PosteriorArgs {
     pub posterior: Option<PathBuf>,
 }
 
-/// `summary.json`: the calibration config and folder the posterior came from (what `eval --params`
-/// needs to rebuild the scene), then the posterior's summary.
-#[derive(Serialize)]
-struct SummaryFile<'a> {
-    config: &'a Path,
-    calibration: &'a Path,
-    /// `replayed.csv` files of `--validate` runs fitted beside the calibration's evaluations.
-    replays: &'a [PathBuf],
-    #[serde(flatten)]
-    summary: &'a PosteriorSummary,
-}
-
 /// The files `rlpkg posterior` writes into its output folder.
-const OUTPUT_FILES: [&str; 3] = ["samples.csv", "summary.json", "profiles.csv"];
+const OUTPUT_FILES: [&str; 3] = [SAMPLES_FILE, SUMMARY_FILE, "profiles.csv"];
 
 /// Runs `rlpkg posterior`.
 pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
@@ -189,14 +175,10 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
             out.display()
         ))
     })?;
-    let summary = serde_json::to_string_pretty(&SummaryFile {
-        config: &args.config,
-        calibration: &calibration,
-        replays: &args.replays,
-        summary: &result.summary,
-    })?;
+    let summary =
+        posterior_files::summary_json(&args.config, &calibration, &args.replays, &result.summary)?;
     for (file, text) in OUTPUT_FILES.iter().zip([
-        posterior::samples_csv(&space, &result.draws),
+        posterior_files::samples_csv(&space, &result.draws),
         summary,
         posterior::profiles_csv(&result.profiles),
     ]) {

@@ -9,8 +9,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::posterior::quantile;
+use rlpkg_calib::posterior_files::{self, Samples, SAMPLES_FILE, SUMMARY_FILE};
 use rlpkg_mocap::{Dataset, Split};
 use rlpkg_replay::loss::{Table1Row, TrajectoryLoss};
 use rlpkg_replay::{rollout, set_param, Candidate, Observer, Target};
@@ -20,10 +20,12 @@ use serde::Serialize;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 
-/// The file of a posterior folder that records which calibration it came from.
-pub const SUMMARY_FILE: &str = "summary.json";
-/// The posterior's draws.
-pub const SAMPLES_FILE: &str = "samples.csv";
+/// The rows of the `samples.csv` at `path`, whose columns must be the calibration's `names`.
+pub fn read_samples(path: &Path, names: &[String]) -> anyhow::Result<Vec<Vec<f64>>> {
+    let samples = Samples::read(path).map_err(input_error)?;
+    samples.expect_columns(path, names).map_err(input_error)?;
+    Ok(samples.rows)
+}
 
 /// Largest `--draws`: each draw replays every selected trajectory.
 const MAX_DRAWS: usize = 256;
@@ -105,14 +107,18 @@ pub fn run(args: &PredictiveArgs) -> anyhow::Result<()> {
             args.draws
         )));
     }
-    let (summary_path, samples_path) = posterior_files(args.posterior)?;
-    let config_path = recorded_config(&summary_path)?;
-    let config = CalibrateConfig::load(&config_path).map_err(|e| {
+    let files = posterior_files::locate(args.posterior).map_err(input_error)?;
+    let samples_path = files.samples;
+    let summary_path = files.summary.ok_or_else(|| {
         input_error(format!(
-            "{e} (the calibration config named in {})",
-            summary_path.display()
+            "{}: no {SUMMARY_FILE} beside it; --params {} needs the {SUMMARY_FILE} and \
+             {SAMPLES_FILE} that `rlpkg posterior` writes side by side",
+            samples_path.display(),
+            args.posterior.display()
         ))
     })?;
+    let (config_path, config) =
+        posterior_files::recorded_calibration(&summary_path).map_err(input_error)?;
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let samples = read_samples(&samples_path, &names)?;
     let rows = evenly_spaced(&samples_path, samples.len(), args.draws, "--draws")?;
@@ -255,71 +261,6 @@ pub fn evenly_spaced(
         )));
     }
     Ok((0..draws).map(|i| i * available / draws).collect())
-}
-
-/// `summary.json` and `samples.csv` of the posterior folder `given` names (either file).
-fn posterior_files(given: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
-    let folder = given.parent().unwrap_or(Path::new("."));
-    let pair = (folder.join(SUMMARY_FILE), folder.join(SAMPLES_FILE));
-    for path in [&pair.0, &pair.1] {
-        if !path.is_file() {
-            return Err(input_error(format!(
-                "{}: not found; --params {} needs the {SUMMARY_FILE} and {SAMPLES_FILE} that \
-                 `rlpkg posterior` writes side by side",
-                path.display(),
-                given.display()
-            )));
-        }
-    }
-    Ok(pair)
-}
-
-/// The calibration config a posterior summary records (`config`).
-fn recorded_config(summary: &Path) -> anyhow::Result<PathBuf> {
-    let text = std::fs::read_to_string(summary)
-        .map_err(|e| input_error(format!("{}: {e}", summary.display())))?;
-    let value: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| input_error(format!("{}: not JSON: {e}", summary.display())))?;
-    value["config"].as_str().map(PathBuf::from).ok_or_else(|| {
-        input_error(format!(
-            "{}: no `config` (the calibration config path `rlpkg posterior` records)",
-            summary.display()
-        ))
-    })
-}
-
-/// The rows of `samples.csv`, whose header must name `names` in order.
-pub fn read_samples(path: &Path, names: &[String]) -> anyhow::Result<Vec<Vec<f64>>> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| input_error(format!("{}: {e}", path.display())))?;
-    let mut lines = text.lines();
-    let header = lines.next().unwrap_or("");
-    if header != names.join(",") {
-        return Err(input_error(format!(
-            "{}: header `{header}`; expected the calibration's parameters `{}`",
-            path.display(),
-            names.join(",")
-        )));
-    }
-    lines
-        .enumerate()
-        .map(|(i, line)| {
-            let values: Vec<f64> = line
-                .split(',')
-                .map(|c| c.trim().parse::<f64>())
-                .collect::<Result<_, _>>()
-                .map_err(|e| input_error(format!("{}: line {}: {e}", path.display(), i + 2)))?;
-            if values.len() != names.len() || values.iter().any(|v| !v.is_finite()) {
-                return Err(input_error(format!(
-                    "{}: line {}: expected {} finite values",
-                    path.display(),
-                    i + 2,
-                    names.len()
-                )));
-            }
-            Ok(values)
-        })
-        .collect()
 }
 
 fn split_name(split: Split) -> &'static str {

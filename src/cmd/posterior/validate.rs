@@ -19,10 +19,11 @@ use std::path::{Path, PathBuf};
 use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{BatchObjective, CandidateResult};
 use rlpkg_calib::objective::SimObjective;
-use rlpkg_calib::posterior::{quantile, samples_csv, Evaluation};
+use rlpkg_calib::posterior::{quantile, Evaluation};
+use rlpkg_calib::posterior_files::{self, samples_csv, SAMPLES_FILE, SUMMARY_FILE};
 use serde::Serialize;
 
-use super::predictive::{evenly_spaced, read_samples, Interruptible, SAMPLES_FILE, SUMMARY_FILE};
+use super::predictive::{evenly_spaced, read_samples, Interruptible};
 use crate::cmd::calibrate::training_trajectories;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
@@ -85,15 +86,12 @@ struct Validation {
 pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     let summary_path = args.posterior.join(SUMMARY_FILE);
     let samples_path = args.posterior.join(SAMPLES_FILE);
-    let summary_text = std::fs::read_to_string(&summary_path).map_err(|e| {
+    let mut summary = posterior_files::read_summary(&summary_path).map_err(|e| {
         input_error(format!(
-            "{}: {e}; --validate needs the {SUMMARY_FILE} and {SAMPLES_FILE} of an `rlpkg \
-             posterior` folder",
-            summary_path.display()
+            "{e}; --validate needs the {SUMMARY_FILE} and {SAMPLES_FILE} of an `rlpkg posterior` \
+             folder"
         ))
     })?;
-    let mut summary: serde_json::Value = serde_json::from_str(&summary_text)
-        .map_err(|e| input_error(format!("{}: not JSON: {e}", summary_path.display())))?;
     let (epsilon_loss, epsilon_from) = match args.epsilon_loss {
         Some(loss) => (loss, "--epsilon-loss"),
         None => {
