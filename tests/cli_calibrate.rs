@@ -376,6 +376,7 @@ fn samples_a_posterior_on_the_simulator_and_resumes_it_exactly() {
         "fisher.toml",
         "calibrated.toml",
         "corner.png",
+        "summary.json",
     ] {
         assert!(out_dir.join(file).is_file(), "{file} missing");
     }

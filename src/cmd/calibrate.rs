@@ -18,6 +18,7 @@ use rlpkg_calib::config::CalibrateConfig;
 use rlpkg_calib::driver::{self, CalibratedParams, Plan};
 use rlpkg_calib::fingerprint::{self, ObjectiveRecord};
 use rlpkg_calib::objective::{Observer, SimObjective};
+use rlpkg_calib::posterior_files;
 use rlpkg_mocap::{Dataset, Trajectory};
 use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
@@ -378,6 +379,14 @@ fn run_posterior(
     let best_unit = space.to_unit(&best_values);
     let corner = out_dir.join("corner.png");
     crate::render::plot::write_corner_plot(&corner, &space.names(), &unit, &best_unit)?;
+    // The calibration the draws came from, so that a transport task or `eval --params` given this
+    // folder can rebuild (and check) the scene they are parameters of.
+    let summary = posterior_files::summary_json(&args.config, out_dir, &[], &posterior)?;
+    driver::write_atomically(
+        &out_dir.join(posterior_files::SUMMARY_FILE),
+        summary.as_bytes(),
+    )
+    .map_err(driver_error)?;
     print!("{}", posterior_table(&posterior));
     print!("{}", rlpkg_calib::fisher::fisher_table(&posterior.fisher));
     println!(
@@ -391,7 +400,7 @@ fn run_posterior(
         posterior.best_log_likelihood
     );
     println!(
-        "wrote {}/{{objective.toml, evaluations.csv, search.csv, stages.csv, samples.csv, posterior.toml, best.toml, fisher.toml, calibrated.toml, corner.png}}",
+        "wrote {}/{{objective.toml, evaluations.csv, search.csv, stages.csv, samples.csv, posterior.toml, best.toml, fisher.toml, calibrated.toml, corner.png, summary.json}}",
         out_dir.display()
     );
     if let Some(path) = &args.write_params {
@@ -486,7 +495,7 @@ fn check_write_params(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow:
     inputs.push(Input::Folder(&config.data, "the config's dataset (`data`)"));
     let mut names: Vec<&str> = driver::OUTPUT_FILES.to_vec();
     names.extend(POSTERIOR_FILES);
-    names.push("corner.png");
+    names.extend(["corner.png", posterior_files::SUMMARY_FILE]);
     names.retain(|name| *name != "calibrated.toml");
     let outputs: Vec<PathBuf> = names.iter().map(|name| config.out_dir.join(name)).collect();
     inputs.extend(
