@@ -208,6 +208,22 @@ impl CalibrateConfig {
                             "a time in [0, 60] s",
                         ));
                     }
+                    let r = self.likelihood.replicas;
+                    if !(1..=64).contains(&r) {
+                        return Err(range(
+                            "likelihood.replicas",
+                            r.to_string(),
+                            "an integer in [1, 64]",
+                        ));
+                    }
+                    let j = self.likelihood.replica_jitter;
+                    if !(j > 0.0 && j <= 1e-2) {
+                        return Err(range(
+                            "likelihood.replica_jitter",
+                            j.to_string(),
+                            "a relative perturbation in (0, 0.01]",
+                        ));
+                    }
                     return self.validate_common(file);
                 }
                 (Some(_), Some(_)) => {
@@ -640,6 +656,29 @@ upper = 2.0
         let long = text.replace("decorrelation_s = 0.2", "decorrelation_s = 100.0");
         let message = parse(&long).unwrap_err().to_string();
         assert!(message.contains("likelihood.decorrelation_s"), "{message}");
+        // One replay per candidate unless asked; replicas and their jitter are range-checked.
+        assert_eq!(
+            (c.likelihood.replicas, c.likelihood.replica_jitter),
+            (1, 1e-6)
+        );
+        let replicated = text.replace(
+            "decorrelation_s = 0.2",
+            "decorrelation_s = 0.2\nreplicas = 4",
+        );
+        assert_eq!(parse(&replicated).unwrap().likelihood.replicas, 4);
+        for (bad, key) in [
+            ("replicas = 0", "likelihood.replicas"),
+            ("replicas = 65", "likelihood.replicas"),
+            ("replica_jitter = 0.0", "likelihood.replica_jitter"),
+            ("replica_jitter = 0.1", "likelihood.replica_jitter"),
+        ] {
+            let text = text.replace(
+                "decorrelation_s = 0.2",
+                &format!("decorrelation_s = 0.2\n{bad}"),
+            );
+            let message = parse(&text).unwrap_err().to_string();
+            assert!(message.contains(key), "{bad}: {message}");
+        }
     }
 
     #[test]

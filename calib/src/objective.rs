@@ -5,10 +5,13 @@
 
 use std::sync::Arc;
 
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use rlpkg_mocap::Trajectory;
 use rlpkg_replay::loss::{squared_distance, LossKind, LossWeights};
 use rlpkg_replay::{
-    get_param, mean_loss, rollout, set_param, Candidate, Phase, ReplayError, Target,
+    get_param, mean_loss, rollout, set_param, Candidate, LikelihoodSettings, Phase, ReplayError,
+    Target,
 };
 use rlpkg_sim::{Model, SceneConfig};
 
@@ -36,6 +39,9 @@ pub struct SimObjective {
     targets: Vec<Target>,
     weights: LossWeights,
     observer: Box<dyn Observer>,
+    /// Replays per candidate and their jitter ([`rlpkg_replay::likelihood`], "Replicas").
+    replicas: usize,
+    replica_jitter: f64,
 }
 
 impl SimObjective {
@@ -78,7 +84,31 @@ impl SimObjective {
             targets,
             weights,
             observer: Box::new(()),
+            replicas: 1,
+            replica_jitter: 0.0,
         })
+    }
+
+    /// Replays every candidate of [`SimObjective::rollouts`] as `settings.replicas` replicas
+    /// ([`rlpkg_replay::likelihood`], "Replicas"): its outcomes are then each replica's on every
+    /// target in turn, as [`rlpkg_replay::Likelihood`] expects.
+    pub fn with_replicas(mut self, settings: &LikelihoodSettings) -> Self {
+        self.replicas = settings.replicas.max(1);
+        self.replica_jitter = settings.replica_jitter;
+        self
+    }
+
+    /// `values` as replica `replica` replays them: replica 0 as they are, replica `r > 0` with each
+    /// value scaled by `1 + jitter · u`, `u` uniform in `[−1, 1]` from a stream fixed by `r`.
+    pub fn replica_values(&self, values: &[f64], replica: usize) -> Vec<f64> {
+        if replica == 0 {
+            return values.to_vec();
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(replica as u64);
+        values
+            .iter()
+            .map(|v| v * (1.0 + self.replica_jitter * rng.random_range(-1.0..=1.0)))
+            .collect()
     }
 
     /// Reports progress (and frames) of every rollout to `observer`.
@@ -103,6 +133,8 @@ impl SimObjective {
             targets,
             weights: self.weights,
             observer: Box::new(()),
+            replicas: self.replicas,
+            replica_jitter: self.replica_jitter,
         })
     }
 
@@ -184,16 +216,28 @@ impl SimObjective {
     }
 
     /// Simulates every candidate (values in the space's order) on every target in one batched
-    /// rollout; outcomes `[candidate][target]`.
+    /// rollout; outcomes `[candidate][target]`, or `[candidate][replica · targets + target]` with
+    /// replicas ([`SimObjective::with_replicas`]).
     pub fn rollouts(
         &mut self,
         candidates: &[Vec<f64>],
     ) -> Result<Vec<Vec<RolloutOutcome>>, ReplayError> {
-        let batch: Vec<Candidate> = candidates.iter().map(|c| self.candidate_for(c)).collect();
-        rollout(&self.model, &self.targets, &batch, self.observer.as_mut())
+        let r = self.replicas;
+        let batch: Vec<Candidate> = candidates
+            .iter()
+            .flat_map(|c| (0..r).map(move |k| (c, k)))
+            .map(|(c, k)| self.candidate_for(&self.replica_values(c, k)))
+            .collect();
+        let outcomes = rollout(&self.model, &self.targets, &batch, self.observer.as_mut())?;
+        // Each candidate's replicas, one after the other.
+        Ok(outcomes
+            .chunks(r)
+            .map(|replicas| replicas.concat())
+            .collect())
     }
 
-    /// As [`SimObjective::rollouts`], reporting to `observer` instead of the objective's own.
+    /// As [`SimObjective::rollouts`] of the candidates themselves (no replicas), reporting to
+    /// `observer` instead of the objective's own: the Fisher analysis differentiates one replay.
     pub fn rollouts_observed(
         &self,
         candidates: &[Vec<f64>],
@@ -431,6 +475,46 @@ mod tests {
             (found / 2.0e4).log10().abs() < 0.1,
             "recovered k_tri_e = {found} (true 2e4), {best:?}"
         );
+    }
+
+    #[test]
+    fn replicas_replay_each_candidate_with_its_values_jittered_after_the_first() {
+        let mut scene = load_scene("reference", Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        scene.health.object_outside = false;
+        let target = Target::new(&recorded("HHLHL"), Some(0.3), false).unwrap();
+        let names = vec!["k_tri_e".to_string(), "k_spr_e".to_string()];
+        let weights = LossWeights::default();
+        let mut one =
+            SimObjective::from_targets(&scene, names.clone(), vec![target.clone()], weights)
+                .unwrap();
+        let settings = LikelihoodSettings {
+            replicas: 3,
+            replica_jitter: 1e-3,
+            ..LikelihoodSettings::default()
+        };
+        let mut three = SimObjective::from_targets(&scene, names, vec![target], weights)
+            .unwrap()
+            .with_replicas(&settings);
+        let values = one.base_values();
+        assert_eq!(three.replica_values(&values, 0), values);
+        let jittered = three.replica_values(&values, 1);
+        assert_ne!(jittered, values);
+        assert_eq!(jittered, three.replica_values(&values, 1), "a fixed stream");
+        assert!(jittered
+            .iter()
+            .zip(&values)
+            .all(|(j, v)| (j / v - 1.0).abs() <= 1e-3));
+        let single = one.rollouts(&[values.clone()]).unwrap();
+        let replicated = three.rollouts(&[values.clone(), values]).unwrap();
+        assert_eq!(replicated.len(), 2);
+        assert_eq!(replicated[0].len(), 3);
+        // Replica 0 is the candidate's own replay; the others moved.
+        let chamfer = |o: &RolloutOutcome| o.loss.mean_chamfer();
+        assert!(chamfer(&single[0][0]).is_finite());
+        assert_eq!(chamfer(&replicated[0][0]), chamfer(&single[0][0]));
+        assert_ne!(chamfer(&replicated[0][1]), chamfer(&single[0][0]));
+        assert_eq!(chamfer(&replicated[1][2]), chamfer(&replicated[0][2]));
     }
 
     #[test]

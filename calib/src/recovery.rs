@@ -241,14 +241,24 @@ pub fn recover_sampled(
     let model = Arc::new(Model::new(scene).map_err(ReplayError::from)?);
     // The real recordings with their tracks tied to sites: the synthetic ones hide the sites the
     // real frames do not see.
-    let real = SimObjective::from_targets(scene, names.clone(), targets.to_vec(), weights)?;
-    let truth_candidate = real.candidate_for(truth);
+    let real = SimObjective::from_targets(scene, names.clone(), targets.to_vec(), weights)?
+        .with_replicas(likelihood);
+    // With replicas the recordings are made by a replica of its own, not the truth's exact
+    // values: near an edge between two outcomes those are matched by their own bits only, and a
+    // real film shows what its neighbourhood does ([`rlpkg_replay::likelihood`], "Replicas").
+    let recorded = if likelihood.replicas > 1 {
+        real.replica_values(truth, likelihood.replicas)
+    } else {
+        truth.to_vec()
+    };
+    let truth_candidate = real.candidate_for(&recorded);
     let observation = Observation {
         noise_std_m,
         seed: seed.wrapping_add(index as u64),
     };
     let synthetic = synthetic_targets(&model, real.targets(), &truth_candidate, observation)?;
-    let mut objective = SimObjective::from_targets(scene, names, synthetic, weights)?;
+    let mut objective =
+        SimObjective::from_targets(scene, names, synthetic, weights)?.with_replicas(likelihood);
     let settings = crate::smc::SmcSettings {
         seed: smc.seed.wrapping_add(index as u64),
         ..*smc

@@ -15,6 +15,15 @@
 //! Successive frames at 240 per second are not independent: the model's error is smooth in time.
 //! Each residual's count is divided by the frames in [`LikelihoodSettings::decorrelation_s`] (an
 //! assumption stated in the calibration config; longer is more cautious: wider posteriors).
+//!
+//! **Replicas.** A film solved to convergence is multistable: near the edge between two outcomes
+//! (it settles into one fold or another) a change of a part in a million in any value moves the
+//! replay by centimetres, so one replay's likelihood is a function of the values' last bits, not of
+//! the material. With [`LikelihoodSettings::replicas`] `R > 1` every candidate is replayed `R`
+//! times, replica `r > 0` with each value scaled by `1 + replica_jitter · u` (`u` uniform in
+//! `[−1, 1]`, a fixed stream per replica), and the likelihood is the mean of the replicas'
+//! likelihoods: a Monte Carlo estimate of the likelihood marginalised over perturbations nothing
+//! measures (the "pseudo-marginal" likelihood), which is a function of the material.
 
 use serde::{Deserialize, Serialize};
 
@@ -27,14 +36,41 @@ use crate::target::Target;
 pub struct LikelihoodSettings {
     /// Time (s) over which residuals are taken as one independent observation (assumption).
     pub decorrelation_s: f64,
+    /// Replays of each candidate (module docs, "Replicas"); 1: the candidate's own replay only.
+    #[serde(default = "one")]
+    pub replicas: usize,
+    /// Relative perturbation of every value in the replicas after the first (assumption: far
+    /// below anything a calibration could resolve, above single precision's resolution).
+    #[serde(default = "default_replica_jitter")]
+    pub replica_jitter: f64,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn default_replica_jitter() -> f64 {
+    1e-6
 }
 
 impl Default for LikelihoodSettings {
     fn default() -> Self {
         Self {
             decorrelation_s: 0.1,
+            replicas: 1,
+            replica_jitter: default_replica_jitter(),
         }
     }
+}
+
+/// The mean of likelihoods given by their logarithms, as a logarithm (`−∞` when every one is).
+pub fn log_mean_exp(log_values: &[f64]) -> f64 {
+    let top = log_values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if top == f64::NEG_INFINITY || log_values.is_empty() {
+        return f64::NEG_INFINITY;
+    }
+    let sum: f64 = log_values.iter().map(|l| (l - top).exp()).sum();
+    top + (sum / log_values.len() as f64).ln()
 }
 
 /// The log-likelihood on a fixed set of recordings.
@@ -44,6 +80,8 @@ pub struct Likelihood {
     pub package_count: f64,
     /// Independent residual coordinates of the object.
     pub object_count: f64,
+    /// Replays per candidate ([`LikelihoodSettings::replicas`]).
+    pub replicas: usize,
 }
 
 impl Likelihood {
@@ -65,12 +103,26 @@ impl Likelihood {
         Self {
             package_count,
             object_count,
+            replicas: settings.replicas.max(1),
         }
     }
 
     /// `ln L` of one candidate from its outcomes on every target (up to a constant); `−∞` when a
-    /// rollout diverged or a term cannot be computed.
+    /// rollout diverged or a term cannot be computed. With replicas, `outcomes` holds each
+    /// replica's outcomes on every target in turn, and a diverged replica has zero likelihood.
     pub fn log_likelihood(&self, outcomes: &[RolloutOutcome]) -> f64 {
+        if self.replicas > 1 && !outcomes.is_empty() && outcomes.len() % self.replicas == 0 {
+            let per_replica = outcomes.len() / self.replicas;
+            let logs: Vec<f64> = outcomes
+                .chunks(per_replica)
+                .map(|replica| self.of_one_replay(replica))
+                .collect();
+            return log_mean_exp(&logs);
+        }
+        self.of_one_replay(outcomes)
+    }
+
+    fn of_one_replay(&self, outcomes: &[RolloutOutcome]) -> f64 {
         if outcomes.is_empty() || outcomes.iter().any(|o| o.diverged.is_some()) {
             return f64::NEG_INFINITY;
         }
@@ -118,6 +170,17 @@ mod tests {
     use crate::rollout::{rollout, set_param, Candidate};
     use crate::synthetic::{synthetic_targets, Observation};
     use crate::{load_scene, Target};
+
+    #[test]
+    fn replicas_average_likelihoods_not_their_logarithms() {
+        let (a, b) = (-2.0f64, -5.0f64);
+        let mean = ((a.exp() + b.exp()) / 2.0).ln();
+        assert!((log_mean_exp(&[a, b]) - mean).abs() < 1e-12);
+        // Far apart the mean is the larger one's, less ln 2, without overflow.
+        assert!((log_mean_exp(&[-1.0e4, -3.0e4]) - (-1.0e4 - 2f64.ln())).abs() < 1e-9);
+        assert_eq!(log_mean_exp(&[f64::NEG_INFINITY, -1.0]), -1.0 - 2f64.ln());
+        assert_eq!(log_mean_exp(&[f64::NEG_INFINITY; 2]), f64::NEG_INFINITY);
+    }
 
     #[test]
     fn on_a_tiny_scene_the_likelihood_is_highest_at_the_truth() {
@@ -171,6 +234,7 @@ mod tests {
         let l = Likelihood {
             package_count: 300.0,
             object_count: 30.0,
+            replicas: 1,
         };
         let gain_at = |e: f64| l.from_errors(e / 2.0, 1e-4) - l.from_errors(e, 1e-4);
         assert!((gain_at(1e-2) - gain_at(1e-6)).abs() < 1e-9);

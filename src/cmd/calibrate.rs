@@ -237,6 +237,17 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// How many replays of each candidate the likelihood averages.
+pub(crate) fn replicas_text(likelihood: &rlpkg_replay::LikelihoodSettings) -> String {
+    match likelihood.replicas {
+        1 => "likelihood of one replay per candidate".to_string(),
+        r => format!(
+            "likelihood averaged over {r} replays per candidate (values x (1 +- {:.0e}) after the first)",
+            likelihood.replica_jitter
+        ),
+    }
+}
+
 /// "CMA-ES mode search (P x at most G generations), then " when the sampler has one.
 pub(crate) fn mode_search_text(smc: &rlpkg_calib::smc::SmcSettings) -> String {
     smc.mode_search.map_or(String::new(), |m| {
@@ -306,6 +317,7 @@ fn run_posterior(
         smc.moves,
         out_dir.display()
     );
+    println!("{}", replicas_text(&config.likelihood));
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let bar = ProgressBar::new_spinner().with_style(
         ProgressStyle::with_template("{elapsed_precise} {msg}").expect("valid template"),
@@ -318,6 +330,7 @@ fn run_posterior(
         config.sim.max_seconds,
     )
     .map_err(input_error)?
+    .with_replicas(&config.likelihood)
     .with_observer(Box::new(BarObserver {
         bar: bar.clone(),
         batch_base: Arc::new(AtomicU64::new(0)),

@@ -216,6 +216,10 @@ fn run_sampled(
         1e3 * noise_std_m,
         out.display()
     );
+    println!(
+        "{}",
+        crate::cmd::calibrate::replicas_text(&config.likelihood)
+    );
     let _cooperation = crate::interrupt::Cooperation::start();
     let started = Instant::now();
     let mut recoveries = Vec::with_capacity(truths);
