@@ -258,6 +258,15 @@ fn bad_inputs_exit_with_2_naming_the_file_and_what_was_expected() {
         &["--epsilon-quantile", "(0, 1)"],
     );
     fails_with(&["--epsilon-loss=-1"], &["--epsilon-loss", "> 0"]);
+    // A threshold no evaluation meets would leave only the surrogate's extrapolation.
+    fails_with(
+        &["--epsilon-loss", "1e-30"],
+        &[
+            "evaluations.csv",
+            "below the best loss",
+            "expected a loss >=",
+        ],
+    );
 }
 
 fn repo() -> PathBuf {

@@ -289,6 +289,80 @@ fn transport_trains_on_the_shipped_posterior_draws() {
 }
 
 #[test]
+fn an_input_edited_after_training_stops_a_resume_and_is_named_by_eval() {
+    // The transport task on a copy of its scene: the run records what its config names.
+    let root = env!("CARGO_MANIFEST_DIR");
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene.toml");
+    std::fs::copy(
+        format!("{root}/configs/scenes/calibrated-coarse-soft-film.toml"),
+        &scene,
+    )
+    .unwrap();
+    let text = common::tiny_training("transport.toml", 32, "2.0").replace(
+        &format!("scene = \"{root}/configs/scenes/calibrated-coarse-soft-film.toml\""),
+        "scene = \"scene.toml\"",
+    );
+    assert!(text.contains("scene = \"scene.toml\""));
+    std::fs::write(dir.path().join("transport.toml"), text).unwrap();
+    ok(&rlpkg(
+        &[
+            "train",
+            "transport.toml",
+            "--quiet",
+            "--no-export",
+            "--stop-after",
+            "1",
+        ],
+        dir.path(),
+    ));
+    let inputs = std::fs::read_to_string(dir.path().join("runs/transport/inputs.toml")).unwrap();
+    assert!(
+        inputs.contains("scene.toml") && inputs.contains("deformable-sim-real"),
+        "{inputs}"
+    );
+    let original = std::fs::read_to_string(&scene).unwrap();
+    let edited = original.replacen("mu_con = ", "mu_con = 2.5 # was ", 1);
+    assert_ne!(edited, original);
+    std::fs::write(&scene, edited).unwrap();
+    let resumed = rlpkg(
+        &[
+            "train",
+            "--resume",
+            "runs/transport",
+            "--quiet",
+            "--no-export",
+        ],
+        dir.path(),
+    );
+    let stderr = String::from_utf8_lossy(&resumed.stderr);
+    assert_eq!(resumed.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("scene.toml") && stderr.contains("changed since the run was created"),
+        "{stderr}"
+    );
+    let eval = rlpkg(&["eval", "runs/transport", "--episodes", "1"], dir.path());
+    let stderr = String::from_utf8_lossy(&eval.stderr);
+    assert!(eval.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("note: scene.toml changed since runs/transport was trained"),
+        "{stderr}"
+    );
+    // Put back, the run goes on.
+    std::fs::write(&scene, original).unwrap();
+    ok(&rlpkg(
+        &[
+            "train",
+            "--resume",
+            "runs/transport",
+            "--quiet",
+            "--no-export",
+        ],
+        dir.path(),
+    ));
+}
+
+#[test]
 fn transport_run_is_evaluated_beside_the_scripted_baseline() {
     // The shipped transport config, shrunk: 2 copies on an 11 x 13 grid, 2 s episodes, 2 updates.
     let text = common::tiny_training("transport.toml", 16, "2.0");

@@ -465,12 +465,9 @@ pub fn check_memory(what: &str, bytes: f64) -> Result<(), AgentError> {
 
 /// FNV-1a hash of the configuration text, as 16 hex digits (stored in checkpoints and exports).
 pub fn config_hash(text: &str) -> String {
-    let mut hash: u64 = 0xcbf29ce484222325;
-    for byte in text.bytes() {
-        hash ^= byte as u64;
-        hash = hash.wrapping_mul(0x100000001b3);
-    }
-    format!("{hash:016x}")
+    let mut hash = crate::runners::Fnv::new();
+    hash.update(text.as_bytes());
+    hash.hex()
 }
 
 #[cfg(test)]

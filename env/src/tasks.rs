@@ -4,7 +4,7 @@
 //! the same rule for the relative paths a configuration names
 //! ([`rlpkg_toml_input::find_relative`]).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use rlpkg_toml_input::find_relative;
 use rlpkg_vec_env::{cartpole, pendulum, CartPole, EnvError, EnvSpec, Pendulum, VecEnv};
@@ -217,6 +217,28 @@ fn unknown(id: &str) -> EnvError {
         id: id.to_string(),
         known: IDS.iter().map(|id| id.to_string()).collect(),
     }
+}
+
+/// The files and folders the configuration file at `path` names (a transport task's scene,
+/// recordings and posterior, each found as the task finds it); none for a task without any.
+pub fn named_files(path: &Path) -> Result<Vec<PathBuf>, EnvError> {
+    let fail = |message: String| EnvError::ConfigParse {
+        file: path.display().to_string(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
+    let file: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| fail(e.to_string()))?;
+    let Some(toml::Value::Table(table)) = file.get(TRANSPORT_TABLE) else {
+        return Ok(Vec::new());
+    };
+    let mut table = with_paths_found(table, path);
+    Ok(TRANSPORT_PATHS
+        .iter()
+        .filter_map(|keys| string_at(&mut table, keys).map(|p| PathBuf::from(p.as_str())))
+        .filter(|p| p.exists())
+        .collect())
 }
 
 /// `table` with each relative path of [`TRANSPORT_PATHS`] found by [`find_relative`] from `path`.

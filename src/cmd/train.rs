@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use rlpkg_agents::runners::{clean_leftovers, run_config_path, POLICY_FILE};
+use rlpkg_agents::runners::{
+    changed_inputs, clean_leftovers, record_inputs, run_config_path, INPUTS_FILE, POLICY_FILE,
+};
 use rlpkg_agents::{TrainedPolicy, Trainer};
 
 use crate::cmd::eval::replaced_packages_line;
@@ -77,6 +79,16 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             // A folder that is not a run is named as such, not as one that cannot be locked.
             run_config_path(run_dir).map_err(agent_error)?;
             let lock = lock_folder(run_dir, false)?;
+            let changed = changed_inputs(run_dir).map_err(agent_error)?;
+            if !changed.is_empty() {
+                let names: Vec<String> = changed.iter().map(|p| p.display().to_string()).collect();
+                return Err(input_error(format!(
+                    "{}: {} changed since the run was created ({INPUTS_FILE}); its checkpoints \
+                     were trained on the earlier content: train a new run on the new one",
+                    run_dir.display(),
+                    names.join(", ")
+                )));
+            }
             let mut trainer = Training::of_run(run_dir)
                 .and_then(Training::trainer)
                 .map_err(agent_error)?;
@@ -99,6 +111,8 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
             let trainer = training.trainer().map_err(agent_error)?;
             let lock = lock_folder(&run_dir, true)?;
             trainer.create_run_dir(&run_dir).map_err(agent_error)?;
+            let inputs = rlpkg_env::tasks::named_files(config_path).map_err(input_error)?;
+            record_inputs(&run_dir, &inputs).map_err(agent_error)?;
             (trainer, run_dir, lock)
         }
         (None, None) => {

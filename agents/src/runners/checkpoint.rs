@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! runs/<name>/config.toml                    the configuration, as given
+//! runs/<name>/inputs.toml                    fingerprints of the files it names (`inputs`)
 //! runs/<name>/events.out.tfevents.*          TensorBoard scalars
 //! runs/<name>/checkpoints/update_000010/     model.bpk, optimizer.bpk, state.json
 //! runs/<name>/checkpoints/latest             name of the newest complete checkpoint
@@ -207,6 +208,8 @@ pub fn run_file_kind(run_dir: &Path, path: &Path) -> Option<&'static str> {
         Some("an event file of the run")
     } else if alone && first == rlpkg_files::lock::LOCK_FILE {
         Some("the run's lock file")
+    } else if alone && first == super::inputs::INPUTS_FILE {
+        Some("the run's input fingerprints")
     } else {
         None
     }
@@ -220,7 +223,10 @@ pub fn clean_leftovers(run_dir: &Path) -> Result<Vec<PathBuf>, AgentError> {
     let mut removed = Vec::new();
     let checkpoints = run_dir.join(CHECKPOINTS);
     for (dir, files) in [
-        (run_dir, &[CONFIG_FILE, POLICY_FILE][..]),
+        (
+            run_dir,
+            &[CONFIG_FILE, POLICY_FILE, super::inputs::INPUTS_FILE][..],
+        ),
         (checkpoints.as_path(), &[LATEST][..]),
     ] {
         let entries = match std::fs::read_dir(dir) {

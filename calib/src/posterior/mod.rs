@@ -446,6 +446,16 @@ fn epsilon(threshold: Threshold, sorted: &[f64]) -> Result<(f64, String), Poster
             quantile(sorted, q),
             format!("quantile {q} of the finite losses"),
         )),
+        // Below the best loss no evaluation passes: the "posterior" would be the surrogate's
+        // extrapolation alone, excluding the best fit.
+        Threshold::Loss(loss) if loss > 0.0 && loss.is_finite() && loss.ln() < sorted[0] => {
+            Err(PosteriorError::Setting(format!(
+                "threshold loss {loss} is below the best loss of the evaluations ({:.6e}): no \
+                 evaluation is within it; expected a loss >= {:.6e}",
+                sorted[0].exp(),
+                sorted[0].exp()
+            )))
+        }
         Threshold::Loss(loss) if loss > 0.0 && loss.is_finite() => {
             Ok((loss.ln(), format!("loss {loss}")))
         }
@@ -593,6 +603,14 @@ mod tests {
         assert!((median.summary.epsilon_loss - expected).abs() < 1e-12 * expected);
         let fixed = infer(&space, &evaluations, &settings(Threshold::Loss(0.02))).unwrap();
         assert!((fixed.summary.epsilon_loss - 0.02).abs() < 1e-15);
+        match infer(
+            &space,
+            &evaluations,
+            &settings(Threshold::Loss(losses[0] / 2.0)),
+        ) {
+            Err(PosteriorError::Setting(m)) => assert!(m.contains("below the best loss"), "{m}"),
+            _ => panic!("a threshold below the best loss was accepted"),
+        }
         for bad in [Threshold::Quantile(0.0), Threshold::Loss(-1.0)] {
             assert!(matches!(
                 infer(&space, &evaluations, &settings(bad)),

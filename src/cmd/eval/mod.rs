@@ -157,6 +157,13 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     };
     let episodes = episode_count(args.episodes)?;
     let training = Training::of_run(run).map_err(agent_error)?;
+    for path in rlpkg_agents::runners::changed_inputs(run).map_err(agent_error)? {
+        eprintln!(
+            "note: {} changed since {} was trained; evaluating on its current content",
+            path.display(),
+            run.display()
+        );
+    }
     let policy = TrainedPolicy::load(
         run,
         &training.config,
