@@ -505,7 +505,7 @@ mod tests {
             .iter()
             .zip(&values)
             .all(|(j, v)| (j / v - 1.0).abs() <= 1e-3));
-        let single = one.rollouts(&[values.clone()]).unwrap();
+        let single = one.rollouts(std::slice::from_ref(&values)).unwrap();
         let replicated = three.rollouts(&[values.clone(), values]).unwrap();
         assert_eq!(replicated.len(), 2);
         assert_eq!(replicated[0].len(), 3);

@@ -111,7 +111,8 @@ impl Likelihood {
     /// rollout diverged or a term cannot be computed. With replicas, `outcomes` holds each
     /// replica's outcomes on every target in turn, and a diverged replica has zero likelihood.
     pub fn log_likelihood(&self, outcomes: &[RolloutOutcome]) -> f64 {
-        if self.replicas > 1 && !outcomes.is_empty() && outcomes.len() % self.replicas == 0 {
+        if self.replicas > 1 && !outcomes.is_empty() && outcomes.len().is_multiple_of(self.replicas)
+        {
             let per_replica = outcomes.len() / self.replicas;
             let logs: Vec<f64> = outcomes
                 .chunks(per_replica)

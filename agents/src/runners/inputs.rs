@@ -129,15 +129,15 @@ mod tests {
         record_inputs(&run, &[scene.clone(), data.clone()]).unwrap();
         assert!(changed_inputs(&run).unwrap().is_empty());
         std::fs::write(&scene, "mu_con = 2.5\n").unwrap();
-        assert_eq!(changed_inputs(&run).unwrap(), [scene.clone()]);
+        assert_eq!(changed_inputs(&run).unwrap(), vec![scene.clone()]);
         std::fs::write(&scene, "mu_con = 0.6\n").unwrap();
         std::fs::write(data.join("take/markers.csv"), "t,x\n0,2\n").unwrap();
-        assert_eq!(changed_inputs(&run).unwrap(), [data.clone()]);
+        assert_eq!(changed_inputs(&run).unwrap(), vec![data.clone()]);
         std::fs::write(data.join("take/markers.csv"), "t,x\n0,1\n").unwrap();
         std::fs::rename(data.join("take"), data.join("other")).unwrap();
         assert_eq!(
             changed_inputs(&run).unwrap(),
-            [data.clone()],
+            vec![data.clone()],
             "a renamed take"
         );
         std::fs::remove_file(&scene).unwrap();
