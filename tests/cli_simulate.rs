@@ -285,6 +285,29 @@ fn ctrl_c_while_writing_leaves_no_temporary_file() {
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     assert!(!out.path().join("replay.gif").exists());
     assert!(!out.path().join("summary.json").exists());
+    // The replay wrote into a staging folder: nothing of it, not even a still, is left in `out`,
+    // which takes the next replay.
+    assert!(files.is_empty(), "the interrupted replay left {files:?}");
+    let again = rlpkg(&[
+        "simulate",
+        trajectory("HHLHL").to_str().unwrap(),
+        "--grid",
+        "16x19",
+        "--seconds",
+        "0.05",
+        "--no-gif",
+        "--out",
+        out.path().to_str().unwrap(),
+    ]);
+    assert!(
+        again.status.success(),
+        "{}",
+        String::from_utf8_lossy(&again.stderr)
+    );
+    assert!(out.path().join("summary.json").is_file());
+    assert!(files_under(&out.path().join("frames"))
+        .iter()
+        .all(|f| f.extension().is_some_and(|e| e == "png")));
 }
 
 #[test]

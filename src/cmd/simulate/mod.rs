@@ -101,10 +101,21 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         seconds: args.seconds,
     };
     let replay = Replay::new(&recording, dir, &config, options)?;
-    // From here on a signal stops the replay between two pictures; the unfinished GIF removes
-    // its temporary file when dropped, and nothing else is open for writing then.
+    // From here on a signal stops the replay between two pictures. Everything is written into a
+    // hidden staging folder inside `out` and moved into place once the replay ended: a signal, a
+    // full disk or an error leaves `out` as it was (the staging folder is removed when dropped).
     let _cooperation = crate::interrupt::Cooperation::start();
     prepare_output(&out)?;
+    let staging = tempfile::Builder::new()
+        .prefix(STAGING_PREFIX)
+        .tempdir_in(&out)
+        .and_then(|staging| std::fs::create_dir(staging.path().join("frames")).map(|_| staging))
+        .map_err(|e| {
+            output_error(anyhow::Error::new(e).context(format!(
+                "{}: cannot stage the replay's files",
+                out.display()
+            )))
+        })?;
     println!(
         "simulate {}: {} package + {} cup particles, dt = 1/{} s, {:.2} s rest + {:.3} s replay ({} substeps)",
         recording.id,
@@ -116,8 +127,11 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         replay.total_substeps(),
     );
     let started = Instant::now();
-    let outcome = replay.run(&recording, args.no_gif, &out)?;
+    let mut outcome = replay.run(&recording, args.no_gif, staging.path())?;
     let wall_s = started.elapsed().as_secs_f64();
+    if let Some(gif) = &mut outcome.gif {
+        gif.0 = out.join("replay.gif");
+    }
     let summary = outcome.summary(
         &recording,
         &replay.model,
@@ -127,10 +141,11 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         &out,
     );
     write_atomic(
-        &out.join("summary.json"),
+        &staging.path().join("summary.json"),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )
     .map_err(output_error)?;
+    move_into_place(staging.path(), &out)?;
     outcome.print(wall_s, &out);
     // The scene's values and step are the user's: a replay they cannot carry is bad input (exit 2).
     if let Some((frame, t)) = outcome.non_finite {
@@ -149,6 +164,54 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
             event.time - replay.rest_s,
             out.display()
         )));
+    }
+    Ok(())
+}
+
+/// The hidden folder inside `--out` a replay's files are written into before they are moved.
+const STAGING_PREFIX: &str = ".simulate-";
+
+/// Moves every file `staging` holds (and its `frames/`) into `out`, the stills first and
+/// `summary.json` last, so that a folder with a summary holds the whole replay.
+fn move_into_place(staging: &Path, out: &Path) -> anyhow::Result<()> {
+    let io = |path: &Path, e: std::io::Error| {
+        output_error(anyhow::Error::new(e).context(format!(
+            "{}: cannot move the replay's file here",
+            path.display()
+        )))
+    };
+    let frames = staging.join("frames");
+    let mut stills: Vec<PathBuf> = std::fs::read_dir(&frames)
+        .and_then(|entries| entries.map(|e| e.map(|e| e.path())).collect())
+        .map_err(|e| io(&frames, e))?;
+    stills.sort();
+    let into = out.join("frames");
+    std::fs::create_dir_all(&into).map_err(|e| io(&into, e))?;
+    let summary = "summary.json";
+    let files = OUTPUT_FILES
+        .iter()
+        .filter(|f| **f != summary)
+        .chain([&summary]);
+    let moves = stills
+        .into_iter()
+        .map(|still| {
+            let name = still.file_name().expect("a listed file").to_owned();
+            (still, out.join("frames").join(name))
+        })
+        .chain(files.map(|f| (staging.join(f), out.join(f))));
+    for (from, to) in moves {
+        if !from.exists() {
+            continue;
+        }
+        // A symlink or a FIFO the user placed where an output goes is written through (or
+        // refused) as any output is; a regular file or nothing is replaced by the staged one.
+        let placed = std::fs::symlink_metadata(&to).is_ok_and(|m| !m.is_file());
+        if placed {
+            let bytes = std::fs::read(&from).map_err(|e| io(&from, e))?;
+            write_atomic(&to, &bytes).map_err(output_error)?;
+        } else {
+            std::fs::rename(&from, &to).map_err(|e| io(&to, e))?;
+        }
     }
     Ok(())
 }
@@ -203,7 +266,7 @@ fn refuse_earlier_output(out: &Path) -> anyhow::Result<()> {
     )))
 }
 
-/// Creates `out/frames` and removes temporary files an interrupted earlier run left behind.
+/// Creates `out` and removes temporary files an interrupted earlier run left behind.
 fn prepare_output(out: &Path) -> anyhow::Result<()> {
     if out.exists() && !out.is_dir() {
         return Err(input_error(format!(
@@ -212,10 +275,10 @@ fn prepare_output(out: &Path) -> anyhow::Result<()> {
         )));
     }
     let frames = out.join("frames");
-    std::fs::create_dir_all(&frames).map_err(|err| {
+    std::fs::create_dir_all(out).map_err(|err| {
         input_error(format!(
             "{}: cannot create the output folder: {err}",
-            frames.display()
+            out.display()
         ))
     })?;
     let is_output_temporary = |name: &str| {
@@ -224,10 +287,27 @@ fn prepare_output(out: &Path) -> anyhow::Result<()> {
             .any(|file| name.starts_with(&format!(".{file}.")))
     };
     let is_still_temporary = |name: &str| name.starts_with('.') && name.contains(".tmp");
+    // The staging folder of a replay killed outright (a signal or an error removes its own).
+    if let Ok(entries) = std::fs::read_dir(out) {
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if name.starts_with(STAGING_PREFIX) && entry.path().is_dir() {
+                std::fs::remove_dir_all(entry.path()).map_err(|err| {
+                    input_error(format!(
+                        "{}: cannot remove this leftover staging folder: {err}",
+                        entry.path().display()
+                    ))
+                })?;
+            }
+        }
+    }
     for (dir, is_temporary) in [
         (out, &is_output_temporary as &dyn Fn(&str) -> bool),
         (frames.as_path(), &is_still_temporary),
     ] {
+        if !dir.exists() {
+            continue;
+        }
         let entries = std::fs::read_dir(dir)
             .map_err(|err| input_error(format!("{}: {err}", dir.display())))?;
         for entry in entries.flatten() {
