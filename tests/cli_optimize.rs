@@ -304,3 +304,41 @@ fn receding_horizon_control_gives_the_same_episodes_on_one_and_two_threads() {
     assert_eq!(refused.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&refused.stderr).contains("[mpc]"));
 }
+
+#[test]
+fn a_signal_before_the_files_are_in_place_leaves_the_output_folder_as_it_was() {
+    // A one-iteration search stopped by SIGTERM while it settles its packages: the command ends
+    // with 130 after the iteration, and the folder holds neither its files nor a staging folder.
+    let dir = tempfile::tempdir().unwrap();
+    setup(
+        dir.path(),
+        &TINY.replace("iterations = 3", "iterations = 1"),
+    );
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+        .args(["optimize", "optimize.toml", "--quiet", "--out", "stopped"])
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let kill = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{stderr}");
+    let stopped = dir.path().join("stopped");
+    let left = if stopped.exists() {
+        read_dir(&stopped)
+    } else {
+        Vec::new()
+    };
+    assert!(
+        left.is_empty(),
+        "{:?}",
+        left.iter().map(|f| &f.0).collect::<Vec<_>>()
+    );
+}

@@ -22,7 +22,7 @@ use rlpkg_env::transport::{
 use rlpkg_env::Transport;
 use serde::{Deserialize, Serialize};
 
-use crate::error::input_error;
+use crate::error::{input_error, output_error};
 use crate::render::plot::write_cost_plot;
 
 /// Arguments of `rlpkg optimize`.
@@ -668,8 +668,37 @@ fn write_file(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
 }
 
-/// Writes the trajectory, commands, costs, plot and summary into `out`.
+/// Writes the trajectory, commands, costs, plot and summary into `out`: all of them into a hidden
+/// staging folder first, then moved into place (`summary.json` last) unless a signal asked the
+/// command to stop, so that a signal, a full disk or an error leaves `out` as it was.
 fn write_outputs(out: &Path, config: &OptimizeConfig, found: &Optimised) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out)
+        .map_err(|e| input_error(format!("{}: cannot create: {e}", out.display())))?;
+    let staging = tempfile::Builder::new()
+        .prefix(".optimize-")
+        .tempdir_in(out)
+        .map_err(|e| output_error(anyhow::Error::new(e).context(out.display().to_string())))?;
+    write_staged(staging.path(), config, found)?;
+    crate::interrupt::check()?;
+    for name in OUTPUT_FILES {
+        let (from, to) = (staging.path().join(name), out.join(name));
+        std::fs::rename(&from, &to).map_err(|e| {
+            output_error(anyhow::Error::new(e).context(format!("moving {}", to.display())))
+        })?;
+    }
+    Ok(())
+}
+
+/// The files [`write_outputs`] writes, in the order they are moved into place.
+const OUTPUT_FILES: [&str; 5] = [
+    "trajectory.csv",
+    "commands.csv",
+    "costs.csv",
+    "costs.png",
+    "summary.json",
+];
+
+fn write_staged(out: &Path, config: &OptimizeConfig, found: &Optimised) -> anyhow::Result<()> {
     let Optimised {
         summary,
         curve,
@@ -677,12 +706,11 @@ fn write_outputs(out: &Path, config: &OptimizeConfig, found: &Optimised) -> anyh
         control_interval_s: dt,
         ..
     } = found;
-    std::fs::create_dir_all(out)
-        .map_err(|e| input_error(format!("{}: cannot create: {e}", out.display())))?;
     let write = |name: &str, bytes: &[u8]| -> anyhow::Result<()> {
         let path = out.join(name);
-        rlpkg_files::write_atomic(&path, bytes)
-            .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
+        rlpkg_files::write_atomic(&path, bytes).map_err(|e| {
+            output_error(anyhow::Error::new(e).context(format!("writing {}", path.display())))
+        })
     };
     write("trajectory.csv", robot_csv(trace, *dt).as_bytes())?;
     let mut commands = String::from("time_s,path_speed_m_s,tilt_offset_x_rad,tilt_offset_z_rad\n");
