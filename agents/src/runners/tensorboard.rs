@@ -158,8 +158,9 @@ impl EventWriter {
     }
 
     /// Continues the event file of a checkpoint: cuts it back to `position.len` (dropping what was
-    /// logged after the checkpoint) and appends from there. When the file is gone or shorter (a
-    /// user removed it), starts a new file and marks the restart at `next_step` so TensorBoard
+    /// logged after the checkpoint) and appends from there. When the file is shorter (cut by a full
+    /// disk or a user), it is cut back to its last whole record and continued; when it is gone, a
+    /// new file is started. Either way the restart is marked at `next_step` so that TensorBoard
     /// discards the orphaned events of any older file.
     pub fn resume(
         run_dir: &Path,
@@ -197,9 +198,32 @@ impl EventWriter {
                     len: position.len,
                 });
             }
+            let whole = std::fs::read(&path).map_or(0, |bytes| whole_records_len(&bytes));
+            if whole > 0 {
+                let file = OpenOptions::new()
+                    .write(true)
+                    .open(&path)
+                    .map_err(|e| AgentError::io(&path, e))?;
+                file.set_len(whole as u64)
+                    .map_err(|e| AgentError::io(&path, e))?;
+                let mut writer = Self {
+                    path,
+                    file,
+                    pending: Vec::new(),
+                    len: whole as u64,
+                };
+                writer.mark_restart(next_step)?;
+                return Ok(writer);
+            }
         }
         let mut writer = Self::create(run_dir)?;
-        writer.push(Event {
+        writer.mark_restart(next_step)?;
+        Ok(writer)
+    }
+
+    /// A `SessionLog` start at `step`: TensorBoard drops what older files logged from there on.
+    fn mark_restart(&mut self, next_step: u64) -> Result<(), AgentError> {
+        self.push(Event {
             wall_time: wall_time(),
             step: next_step as i64,
             kind: Some(EventKind::SessionLog(SessionLog {
@@ -208,8 +232,7 @@ impl EventWriter {
                 msg: "resumed from a checkpoint".into(),
             })),
         });
-        writer.flush()?;
-        Ok(writer)
+        self.flush()
     }
 
     /// Queues a scalar; it reaches the file on the next [`EventWriter::flush`].
@@ -276,6 +299,62 @@ impl EventWriter {
     }
 }
 
+/// The records of an event file's bytes in order: each one's offset and payload, its framing
+/// and CRCs checked; the first bad one ends the sequence with its offset and what is wrong.
+fn records(bytes: &[u8]) -> impl Iterator<Item = Result<(usize, &[u8]), (usize, &'static str)>> {
+    let mut offset = 0;
+    let mut failed = false;
+    std::iter::from_fn(move || {
+        if failed || offset >= bytes.len() {
+            return None;
+        }
+        let rest = &bytes[offset..];
+        let record = (|| {
+            if rest.len() < 12 {
+                return Err("truncated header");
+            }
+            let length_bytes = &rest[..8];
+            let stored = u32::from_le_bytes(rest[8..12].try_into().expect("4 bytes"));
+            if masked_crc(length_bytes) != stored {
+                return Err("length CRC mismatch");
+            }
+            let length = u64::from_le_bytes(length_bytes.try_into().expect("8 bytes"));
+            if length > MAX_EVENT_BYTES || rest.len() < FRAME_BYTES + length as usize {
+                return Err("truncated or oversized event");
+            }
+            let payload = &rest[12..12 + length as usize];
+            let stored = u32::from_le_bytes(
+                rest[12 + length as usize..FRAME_BYTES + length as usize]
+                    .try_into()
+                    .expect("4 bytes"),
+            );
+            if masked_crc(payload) != stored {
+                return Err("payload CRC mismatch");
+            }
+            Ok(payload)
+        })();
+        match record {
+            Ok(payload) => {
+                let at = offset;
+                offset += FRAME_BYTES + payload.len();
+                Some(Ok((at, payload)))
+            }
+            Err(what) => {
+                failed = true;
+                Some(Err((offset, what)))
+            }
+        }
+    })
+}
+
+/// The length of the whole records at the start of an event file's bytes.
+fn whole_records_len(bytes: &[u8]) -> usize {
+    records(bytes)
+        .map_while(Result::ok)
+        .last()
+        .map_or(0, |(offset, payload)| offset + FRAME_BYTES + payload.len())
+}
+
 /// Reads every scalar of an event file, checking each record's framing and CRCs.
 pub fn read_scalars(path: &Path) -> Result<Vec<ScalarEvent>, AgentError> {
     let mut bytes = Vec::new();
@@ -287,30 +366,8 @@ pub fn read_scalars(path: &Path) -> Result<Vec<ScalarEvent>, AgentError> {
         reason: format!("event record at byte {offset}: {what}"),
     };
     let mut scalars = Vec::new();
-    let mut offset = 0;
-    while offset < bytes.len() {
-        let rest = &bytes[offset..];
-        if rest.len() < 12 {
-            return Err(corrupt(offset, "truncated header"));
-        }
-        let length_bytes = &rest[..8];
-        let stored = u32::from_le_bytes(rest[8..12].try_into().expect("4 bytes"));
-        if masked_crc(length_bytes) != stored {
-            return Err(corrupt(offset, "length CRC mismatch"));
-        }
-        let length = u64::from_le_bytes(length_bytes.try_into().expect("8 bytes"));
-        if length > MAX_EVENT_BYTES || rest.len() < FRAME_BYTES + length as usize {
-            return Err(corrupt(offset, "truncated or oversized event"));
-        }
-        let payload = &rest[12..12 + length as usize];
-        let stored = u32::from_le_bytes(
-            rest[12 + length as usize..FRAME_BYTES + length as usize]
-                .try_into()
-                .expect("4 bytes"),
-        );
-        if masked_crc(payload) != stored {
-            return Err(corrupt(offset, "payload CRC mismatch"));
-        }
+    for record in records(&bytes) {
+        let (offset, payload) = record.map_err(|(offset, what)| corrupt(offset, what))?;
         let event = Event::decode(payload).map_err(|e| corrupt(offset, &e.to_string()))?;
         if let Some(EventKind::Summary(summary)) = event.kind {
             for value in summary.value {
@@ -323,7 +380,6 @@ pub fn read_scalars(path: &Path) -> Result<Vec<ScalarEvent>, AgentError> {
                 }
             }
         }
-        offset += FRAME_BYTES + length as usize;
     }
     Ok(scalars)
 }
@@ -378,6 +434,35 @@ mod tests {
         let values: Vec<(i64, f32)> = back.iter().map(|e| (e.step, e.value)).collect();
         assert_eq!(values, [(1, 1.0), (2, 3.0)]);
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn a_truncated_file_is_cut_back_to_its_last_whole_record_and_continued() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut writer = EventWriter::create(dir.path()).unwrap();
+        writer.add_scalar("a", 1.0, 1);
+        writer.flush().unwrap();
+        writer.add_scalar("a", 2.0, 2);
+        let position = writer.position().unwrap();
+        drop(writer);
+        // A full disk cut the last record in the middle.
+        let path = dir.path().join(&position.file);
+        let file = OpenOptions::new().write(true).open(&path).unwrap();
+        file.set_len(position.len - 3).unwrap();
+        drop(file);
+        assert!(read_scalars(&path).is_err());
+        let mut resumed = EventWriter::resume(dir.path(), Some(&position), 2).unwrap();
+        assert_eq!(resumed.path(), path);
+        resumed.add_scalar("a", 3.0, 2);
+        resumed.flush().unwrap();
+        let back = read_scalars(&path).unwrap();
+        let values: Vec<(i64, f32)> = back.iter().map(|e| (e.step, e.value)).collect();
+        assert_eq!(values, [(1, 1.0), (2, 3.0)]);
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            1,
+            "no second file"
+        );
     }
 
     #[test]
