@@ -194,22 +194,33 @@ impl Task {
 /// The `[transport]` table of the configuration file at `path` (its other tables are ignored),
 /// with its relative paths found as the CLI finds them.
 pub fn read_transport_config(path: &Path) -> Result<TransportConfig, EnvError> {
-    let source = path.display().to_string();
+    let Some(table) = transport_table(path)? else {
+        return Err(EnvError::ConfigParse {
+            file: path.display().to_string(),
+            message: format!(
+                "no [{TRANSPORT_TABLE}] table; expected a {} configuration",
+                transport::ID
+            ),
+        });
+    };
+    TransportConfig::from_table(&table, &path.display().to_string())
+}
+
+/// The `[transport]` table of the configuration file at `path`, its relative paths found as the
+/// CLI finds them; `None` when it has none.
+fn transport_table(path: &Path) -> Result<Option<toml::Table>, EnvError> {
     let fail = |message: String| EnvError::ConfigParse {
-        file: source.clone(),
+        file: path.display().to_string(),
         message,
     };
     let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
     let file: toml::Table = text
         .parse()
         .map_err(|e: toml::de::Error| fail(e.to_string()))?;
-    let Some(toml::Value::Table(table)) = file.get(TRANSPORT_TABLE) else {
-        return Err(fail(format!(
-            "no [{TRANSPORT_TABLE}] table; expected a {} configuration",
-            transport::ID
-        )));
-    };
-    TransportConfig::from_table(&with_paths_found(table, path), &source)
+    Ok(match file.get(TRANSPORT_TABLE) {
+        Some(toml::Value::Table(table)) => Some(with_paths_found(table, path)),
+        _ => None,
+    })
 }
 
 fn unknown(id: &str) -> EnvError {
@@ -222,18 +233,9 @@ fn unknown(id: &str) -> EnvError {
 /// The files and folders the configuration file at `path` names (a transport task's scene,
 /// recordings and posterior, each found as the task finds it); none for a task without any.
 pub fn named_files(path: &Path) -> Result<Vec<PathBuf>, EnvError> {
-    let fail = |message: String| EnvError::ConfigParse {
-        file: path.display().to_string(),
-        message,
-    };
-    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
-    let file: toml::Table = text
-        .parse()
-        .map_err(|e: toml::de::Error| fail(e.to_string()))?;
-    let Some(toml::Value::Table(table)) = file.get(TRANSPORT_TABLE) else {
+    let Some(mut table) = transport_table(path)? else {
         return Ok(Vec::new());
     };
-    let mut table = with_paths_found(table, path);
     Ok(TRANSPORT_PATHS
         .iter()
         .filter_map(|keys| string_at(&mut table, keys).map(|p| PathBuf::from(p.as_str())))

@@ -32,6 +32,8 @@ pub mod rollout;
 pub mod seal;
 pub mod synthetic;
 pub mod target;
+#[cfg(test)]
+mod test_support;
 pub mod workload;
 
 pub use error::ReplayError;

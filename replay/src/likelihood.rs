@@ -191,10 +191,8 @@ mod tests {
         scene.cups.rest_time_s = 0.1;
         scene.health.object_outside = false;
         let model = Arc::new(Model::new(&scene).unwrap());
-        let root =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
-        let dataset = rlpkg_mocap::Dataset::open(&root).unwrap();
-        let recorded = Target::new(&dataset.load("HHLHL").unwrap(), Some(0.4), false).unwrap();
+        let recorded =
+            Target::new(&crate::test_support::recorded("HHLHL"), Some(0.4), false).unwrap();
         let truth = Candidate::of_scene(&scene);
         let observation = Observation {
             noise_std_m: 3e-4,

@@ -97,12 +97,7 @@ mod tests {
 
     #[test]
     fn a_recorded_transport_has_rest_move_tilt_and_hold() {
-        let root =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
-        let trajectory = rlpkg_mocap::Dataset::open(&root)
-            .unwrap()
-            .load("HHHHH")
-            .unwrap();
+        let trajectory = crate::test_support::recorded("HHHHH");
         let phases = phases(&trajectory.tool, trajectory.tool.t.len());
         assert_eq!(phases[0], Phase::Rest);
         let count = |p| phases.iter().filter(|&&q| q == p).count();

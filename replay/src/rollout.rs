@@ -413,7 +413,6 @@ pub fn mean_loss(outcomes: &[RolloutOutcome], weights: &LossWeights) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rlpkg_mocap::Trajectory;
 
     use crate::target::load_scene;
 
@@ -431,11 +430,7 @@ mod tests {
     }
 
     /// A real recorded trajectory of the repository (tool motion and placement), first frames only.
-    fn recorded(id: &str) -> Trajectory {
-        let root =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
-        rlpkg_mocap::Dataset::open(&root).unwrap().load(id).unwrap()
-    }
+    use crate::test_support::recorded;
 
     #[test]
     fn batched_ragged_rollout_matches_single_rollouts() {

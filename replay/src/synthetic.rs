@@ -194,11 +194,7 @@ mod tests {
     use super::*;
     use crate::load_scene;
 
-    fn recorded(id: &str) -> rlpkg_mocap::Trajectory {
-        let root =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
-        rlpkg_mocap::Dataset::open(&root).unwrap().load(id).unwrap()
-    }
+    use crate::test_support::recorded;
 
     #[test]
     fn the_real_marker_noise_is_a_fraction_of_a_millimetre() {

@@ -303,12 +303,7 @@ mod tests {
 
     #[test]
     fn a_target_within_a_time_is_the_target_prepared_up_to_it() {
-        let root =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
-        let trajectory = rlpkg_mocap::Dataset::open(&root)
-            .unwrap()
-            .load("HHHHH")
-            .unwrap();
+        let trajectory = crate::test_support::recorded("HHHHH");
         let mut whole = Target::new(&trajectory, None, false).unwrap();
         whole.track();
         let mut prepared = Target::new(&trajectory, Some(1.5), false).unwrap();
@@ -333,11 +328,8 @@ mod tests {
 
     #[test]
     fn a_tied_track_keeps_its_site_through_the_recording() {
-        let root =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
-        let dataset = rlpkg_mocap::Dataset::open(&root).unwrap();
         for id in ["HHHHH", "HHLLL", "HHMMM"] {
-            let mut target = Target::new(&dataset.load(id).unwrap(), None, false).unwrap();
+            let mut target = Target::new(&crate::test_support::recorded(id), None, false).unwrap();
             assert_eq!(target.labelled_share(), 0.0, "untied");
             target.track();
             // Sites where every frame sees its markers: each track is tied to a site of its own
