@@ -329,24 +329,26 @@ pub fn recover_sampled(
     })
 }
 
-/// The sampled recovery table: per truth its loss and the best loss found, then per parameter the
-/// interval's median share of the box, its coverage of the truths and how often the Fisher
-/// analysis called it identifiable.
+/// The sampled recovery table: per truth its loss and the best loss found (with replicas, means
+/// over the replicas) and the log-likelihood the best falls short of the truth's (`ln L` gap; at
+/// most 0 when the search reached the truth's), then per parameter the interval's median share of
+/// the box, its coverage of the truths and how often the Fisher analysis called it identifiable.
 pub fn sampled_recovery_table(recoveries: &[SampledTruthRecovery]) -> String {
     let mut text = format!(
-        "{:<6} {:>12} {:>12} {:>12} {:>7} {:>12}
+        "{:<6} {:>12} {:>12} {:>12} {:>7} {:>11} {:>12}
 ",
-        "truth", "truth loss", "nudged loss", "best loss", "ratio", "evaluations"
+        "truth", "truth loss", "nudged loss", "best loss", "ratio", "ln L gap", "evaluations"
     );
     for r in recoveries {
         text.push_str(&format!(
-            "{:<6} {:>12.4e} {:>12.4e} {:>12.4e} {:>7.3} {:>12}
+            "{:<6} {:>12.4e} {:>12.4e} {:>12.4e} {:>7.3} {:>11.1} {:>12}
 ",
             r.truth,
             r.truth_loss,
             r.nudged_truth_loss,
             r.best_loss,
             r.best_loss / r.truth_loss,
+            r.log_likelihoods[0] - r.log_likelihoods[1],
             r.evaluations
         ));
     }
