@@ -255,6 +255,25 @@ fn set_overrides_are_stored_in_the_run_and_bad_ones_exit_with_code_2() {
         assert!(stderr.contains(key), "{set}: {stderr}");
         assert!(!dir.path().join("runs/bad").exists(), "{set}");
     }
+    // A value of the wrong type is named by its key: the merged text's line numbers are not the
+    // file's, so none is given.
+    let out = rlpkg(
+        &[
+            "train",
+            "tiny.toml",
+            "--name",
+            "bad",
+            "--set",
+            "ppo.learning_rate=\"abc\"",
+        ],
+        dir.path(),
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("key `ppo.learning_rate`") && !stderr.contains("line"),
+        "{stderr}"
+    );
 }
 
 #[test]

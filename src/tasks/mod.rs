@@ -68,14 +68,24 @@ impl Training {
         };
         // Each prefix applies (the whole list did); the first one that fails is to blame.
         let fails = |n: usize| with_first(n).map_or(true, |t| Self::parse(t, path).is_err());
-        let blamed = if fails(0) {
+        if fails(0) {
+            // The file itself: its own error, with its own line numbers.
             let all: Vec<String> = sets.iter().map(ToString::to_string).collect();
-            format!("with {}", all.join(" "))
-        } else {
-            let n = (1..=sets.len()).find(|&n| fails(n)).unwrap_or(sets.len());
-            sets[n - 1].to_string()
+            let own = Self::load(path).err().unwrap_or(err);
+            return Err(input_error(format!("with {}: {own}", all.join(" "))));
+        }
+        let n = (1..=sets.len()).find(|&n| fails(n)).unwrap_or(sets.len());
+        // A parse error of the merged text would cite its lines, which are not the file's: name the
+        // key instead.
+        let merged = with_first(n).map_err(input_error)?;
+        let err = match toml::from_str::<TrainingFile>(&merged) {
+            Err(e) if matches!(err, AgentError::ConfigParse { .. }) => {
+                let (_, message) = rlpkg_toml_input::error_at(&merged, &e);
+                format!("{}: {message}", path.display())
+            }
+            _ => err.to_string(),
         };
-        Err(input_error(format!("{blamed}: {err}")))
+        Err(input_error(format!("{}: {err}", sets[n - 1])))
     }
 
     /// The configuration of the run in `run_dir` (its copy of the file the run started from).
