@@ -42,6 +42,8 @@ pub struct SimObjective {
     /// Replays per candidate and their jitter ([`rlpkg_replay::likelihood`], "Replicas").
     replicas: usize,
     replica_jitter: f64,
+    /// The targets of [`SimObjective::rollouts_within`]'s shorter starts, by their end (s).
+    starts: Vec<(f64, Vec<Target>)>,
 }
 
 impl SimObjective {
@@ -86,6 +88,7 @@ impl SimObjective {
             observer: Box::new(()),
             replicas: 1,
             replica_jitter: 0.0,
+            starts: Vec::new(),
         })
     }
 
@@ -135,6 +138,7 @@ impl SimObjective {
             observer: Box::new(()),
             replicas: self.replicas,
             replica_jitter: self.replica_jitter,
+            starts: Vec::new(),
         })
     }
 
@@ -222,13 +226,51 @@ impl SimObjective {
         &mut self,
         candidates: &[Vec<f64>],
     ) -> Result<Vec<Vec<RolloutOutcome>>, ReplayError> {
+        self.rollouts_of(None, candidates)
+    }
+
+    /// As [`SimObjective::rollouts`] on the targets of [`SimObjective::within`]`(seconds)` (made
+    /// once and kept), reported to this objective's observer (which may stop it). `None` when a
+    /// recording has no frame that early.
+    pub fn rollouts_within(
+        &mut self,
+        seconds: f64,
+        candidates: &[Vec<f64>],
+    ) -> Option<Result<Vec<Vec<RolloutOutcome>>, ReplayError>> {
+        if !self.starts.iter().any(|(s, _)| *s == seconds) {
+            let short = self
+                .targets
+                .iter()
+                .map(|t| t.within(seconds))
+                .collect::<Option<Vec<_>>>()?;
+            self.starts.push((seconds, short));
+        }
+        Some(self.rollouts_of(Some(seconds), candidates))
+    }
+
+    fn rollouts_of(
+        &mut self,
+        seconds: Option<f64>,
+        candidates: &[Vec<f64>],
+    ) -> Result<Vec<Vec<RolloutOutcome>>, ReplayError> {
         let r = self.replicas;
         let batch: Vec<Candidate> = candidates
             .iter()
             .flat_map(|c| (0..r).map(move |k| (c, k)))
             .map(|(c, k)| self.candidate_for(&self.replica_values(c, k)))
             .collect();
-        let outcomes = rollout(&self.model, &self.targets, &batch, self.observer.as_mut())?;
+        let targets = match seconds {
+            None => &self.targets,
+            Some(s) => {
+                &self
+                    .starts
+                    .iter()
+                    .find(|(start, _)| *start == s)
+                    .expect("made by rollouts_within")
+                    .1
+            }
+        };
+        let outcomes = rollout(&self.model, targets, &batch, self.observer.as_mut())?;
         // Each candidate's replicas, one after the other.
         Ok(outcomes
             .chunks(r)

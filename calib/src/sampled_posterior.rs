@@ -169,8 +169,8 @@ pub fn sample_posterior(
     let mut all: Vec<LoggedEvaluation> = Vec::new();
     let mut failure: Option<SampledPosteriorError> = None;
     let duration = objective.duration();
-    // The growing-horizon search's shorter starts, each made once and kept.
-    let mut starts: Vec<(f64, SimObjective, Likelihood)> = Vec::new();
+    // The likelihood's counts of the growing-horizon search's shorter starts, made once each.
+    let mut starts: Vec<(f64, Likelihood)> = Vec::new();
     let result = smc::sample(space.dim(), settings, duration, |batch, horizon, unit| {
         let values: Vec<Vec<f64>> = unit.iter().map(|u| space.from_unit(u)).collect();
         let rows = match logged_batches.get(batch) {
@@ -187,25 +187,25 @@ pub fn sample_posterior(
                 rows.clone()
             }
             None => {
-                let (objective, likelihood) = match horizon {
-                    None => (&mut *objective, &likelihood),
+                let (outcomes, likelihood) = match horizon {
+                    None => (objective.rollouts(&values), likelihood),
                     Some(h) => {
-                        if !starts.iter().any(|(s, _, _)| *s == h) {
-                            let start = objective
-                                .within(h)
-                                .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
-                            let counts = Likelihood::new(start.targets(), &settings_of_likelihood);
-                            starts.push((h, start, counts));
+                        let outcomes = objective
+                            .rollouts_within(h, &values)
+                            .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
+                        if !starts.iter().any(|(s, _)| *s == h) {
+                            let short = objective.within(h).expect("rolled out above");
+                            starts.push((
+                                h,
+                                Likelihood::new(short.targets(), &settings_of_likelihood),
+                            ));
                         }
-                        let (_, start, counts) = starts
-                            .iter_mut()
-                            .find(|(s, _, _)| *s == h)
-                            .expect("made above");
-                        (start, &*counts)
+                        let counts = starts.iter().find(|(s, _)| *s == h).expect("made above").1;
+                        (outcomes, counts)
                     }
                 };
-                let outcomes = objective.rollouts(&values).map_err(|e| e.to_string())?;
-                let mut rows = logged_rows(batch, &values, &outcomes, likelihood, objective);
+                let outcomes = outcomes.map_err(|e| e.to_string())?;
+                let mut rows = logged_rows(batch, &values, &outcomes, &likelihood, objective);
                 for row in &mut rows {
                     row.metrics.push(horizon.unwrap_or(duration));
                 }
