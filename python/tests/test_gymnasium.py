@@ -141,3 +141,14 @@ def test_sb3_adapter_reports_terminal_observations():
             assert not np.array_equal(infos[i]["terminal_observation"], obs[i])
     assert seen
     venv.close()
+
+
+def test_a_negative_or_non_integer_seed_raises_value_or_type_error():
+    env = rlpkg.make("CartPole-v1")
+    venv = rlpkg.make_vec("CartPole-v1", 2)
+    for reset in (env.reset, venv.reset):
+        with pytest.raises(ValueError, match="seed=-1"):
+            reset(seed=-1)
+        with pytest.raises(TypeError, match="seed="):
+            reset(seed=1.5)
+        reset(seed=0)

@@ -46,6 +46,11 @@ class RlpkgEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Starts an episode; ``seed`` reseeds the copy (as copy 0 of ``make_vec`` reset with
         that seed), None continues its random stream."""
+        # Checked before Gymnasium seeds its own generator, which raises its own error type.
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+            raise TypeError(f"seed={seed!r}: expected None or an integer >= 0")
+        if seed is not None and seed < 0:
+            raise ValueError(f"seed={seed}: expected an integer >= 0")
         super().reset(seed=seed)
         if options:
             raise ValueError(f"options: {sorted(options)}; {self.rlpkg_spec['id']} takes none")

@@ -165,9 +165,10 @@ class RlpkgVectorEnv(VectorEnv):
         seed_stride + i``), one int per copy, or None (each copy continues its random stream)."""
         if self._core is None:
             raise RuntimeError("reset after close")
+        # Checked before Gymnasium seeds its own generator, which raises its own error type.
+        args = check_seeds(seed, self.num_envs, self.seed_stride)
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             super().reset(seed=int(seed))
-        args = check_seeds(seed, self.num_envs, self.seed_stride)
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if options:
