@@ -51,6 +51,14 @@ fn rlpkg(args: &[&str], dir: &Path) -> Output {
     common::rlpkg_in(args, dir, None)
 }
 
+/// The stderr of `rlpkg args` in `dir`, which must exit with 2 (bad input).
+fn refused(args: &[&str], dir: &Path) -> String {
+    let out = rlpkg(args, dir);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+    stderr
+}
+
 fn eval_json(dir: &Path, run: &str) -> serde_json::Value {
     let out = ok(&rlpkg(&["eval", run, "--episodes", "5", "--json"], dir));
     serde_json::from_str(&out).expect("eval --json prints JSON")
@@ -257,7 +265,7 @@ fn set_overrides_are_stored_in_the_run_and_bad_ones_exit_with_code_2() {
     }
     // A value of the wrong type is named by its key: the merged text's line numbers are not the
     // file's, so none is given.
-    let out = rlpkg(
+    let stderr = refused(
         &[
             "train",
             "tiny.toml",
@@ -268,8 +276,6 @@ fn set_overrides_are_stored_in_the_run_and_bad_ones_exit_with_code_2() {
         ],
         dir.path(),
     );
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(
         stderr.contains("key `ppo.learning_rate`") && !stderr.contains("line"),
         "{stderr}"
@@ -344,7 +350,7 @@ fn an_input_edited_after_training_stops_a_resume_and_is_named_by_eval() {
     let edited = original.replacen("mu_con = ", "mu_con = 2.5 # was ", 1);
     assert_ne!(edited, original);
     std::fs::write(&scene, edited).unwrap();
-    let resumed = rlpkg(
+    let stderr = refused(
         &[
             "train",
             "--resume",
@@ -354,8 +360,6 @@ fn an_input_edited_after_training_stops_a_resume_and_is_named_by_eval() {
         ],
         dir.path(),
     );
-    let stderr = String::from_utf8_lossy(&resumed.stderr);
-    assert_eq!(resumed.status.code(), Some(2), "{stderr}");
     assert!(
         stderr.contains("scene.toml") && stderr.contains("changed since the run was created"),
         "{stderr}"
@@ -674,7 +678,7 @@ fn ctrl_c_removes_the_lock_also_when_it_ends_the_process_at_once() {
     assert_eq!(out.status.code(), Some(130));
     assert!(!dir.path().join("runs/long/.lock").exists());
     // The next command finds the folder free (its --stop-after is refused only after the lock).
-    let resumed = rlpkg(
+    let stderr = refused(
         &[
             "train",
             "--resume",
@@ -685,8 +689,6 @@ fn ctrl_c_removes_the_lock_also_when_it_ends_the_process_at_once() {
         ],
         dir.path(),
     );
-    let stderr = String::from_utf8_lossy(&resumed.stderr);
-    assert_eq!(resumed.status.code(), Some(2), "{stderr}");
     assert!(
         stderr.contains("is already at update") && !stderr.contains("lock"),
         "{stderr}"
