@@ -120,28 +120,6 @@ impl SimObjective {
         self
     }
 
-    /// The same objective on the recordings' first `seconds` only ([`Target::within`]): the
-    /// sites stay tied as on the whole recordings. `None` when a recording has no frame that
-    /// early. No observer.
-    pub fn within(&self, seconds: f64) -> Option<SimObjective> {
-        let targets = self
-            .targets
-            .iter()
-            .map(|t| t.within(seconds))
-            .collect::<Option<Vec<_>>>()?;
-        Some(Self {
-            model: self.model.clone(),
-            base: self.base,
-            names: self.names.clone(),
-            targets,
-            weights: self.weights,
-            observer: Box::new(()),
-            replicas: self.replicas,
-            replica_jitter: self.replica_jitter,
-            starts: Vec::new(),
-        })
-    }
-
     /// The longest prepared recording's duration (s of trajectory time).
     pub fn duration(&self) -> f64 {
         self.targets
@@ -229,8 +207,8 @@ impl SimObjective {
         self.rollouts_of(None, candidates)
     }
 
-    /// As [`SimObjective::rollouts`] on the targets of [`SimObjective::within`]`(seconds)` (made
-    /// once and kept), reported to this objective's observer (which may stop it). `None` when a
+    /// As [`SimObjective::rollouts`] on the recordings' first `seconds` only ([`Target::within`],
+    /// made once and kept; the sites stay tied as on the whole recordings), reported to this objective's observer (which may stop it). `None` when a
     /// recording has no frame that early.
     pub fn rollouts_within(
         &mut self,
@@ -248,6 +226,14 @@ impl SimObjective {
         Some(self.rollouts_of(Some(seconds), candidates))
     }
 
+    /// The targets [`SimObjective::rollouts_within`]`(seconds, ..)` rolled out on, once it has.
+    pub fn targets_within(&self, seconds: f64) -> Option<&[Target]> {
+        self.starts
+            .iter()
+            .find(|(start, _)| *start == seconds)
+            .map(|(_, targets)| targets.as_slice())
+    }
+
     fn rollouts_of(
         &mut self,
         seconds: Option<f64>,
@@ -260,7 +246,7 @@ impl SimObjective {
             .map(|(c, k)| self.candidate_for(&self.replica_values(c, k)))
             .collect();
         let targets = match seconds {
-            None => &self.targets,
+            None => &self.targets[..],
             Some(s) => {
                 &self
                     .starts

@@ -294,9 +294,12 @@ pub fn recover_sampled(
         check.truth_log_likelihood = match check.horizon_s {
             None => counts.log_likelihood(&at_truth[0]),
             Some(h) => {
-                let mut start = objective.within(h).expect("searched on");
-                let outcome = start.rollouts(&[truth.to_vec()])?.remove(0);
-                rlpkg_replay::Likelihood::new(start.targets(), likelihood).log_likelihood(&outcome)
+                let outcome = objective
+                    .rollouts_within(h, &[truth.to_vec()])
+                    .expect("searched on")?
+                    .remove(0);
+                let short = objective.targets_within(h).expect("rolled out above");
+                rlpkg_replay::Likelihood::new(short, likelihood).log_likelihood(&outcome)
             }
         };
     }

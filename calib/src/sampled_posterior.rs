@@ -194,11 +194,8 @@ pub fn sample_posterior(
                             .rollouts_within(h, &values)
                             .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
                         if !starts.iter().any(|(s, _)| *s == h) {
-                            let short = objective.within(h).expect("rolled out above");
-                            starts.push((
-                                h,
-                                Likelihood::new(short.targets(), &settings_of_likelihood),
-                            ));
+                            let short = objective.targets_within(h).expect("rolled out above");
+                            starts.push((h, Likelihood::new(short, &settings_of_likelihood)));
                         }
                         let counts = starts.iter().find(|(s, _)| *s == h).expect("made above").1;
                         (outcomes, counts)
