@@ -12,27 +12,30 @@
 //! * `samples.csv`: the posterior draws ([`crate::posterior_files`], SI values);
 //! * `posterior.toml`: per parameter the median, the 90 % credible interval, its share of the box
 //!   and the best draw's value; the counts and the evidence;
-//! * `best.toml`: the draw of highest likelihood, or the point `smc.polish_iterations`
-//!   Levenberg–Marquardt steps ([`crate::polish`]) reach from it when that is higher
-//!   ([`CalibratedParams`]);
+//! * `best.toml`: the draw of highest likelihood, or the polished point when that is higher: with
+//!   a mode search, `smc.polish_iterations` Levenberg–Marquardt steps ([`crate::polish`]) run from
+//!   the search's best point before sampling, and the sampler starts from the Laplace
+//!   approximation there (the Fisher information's inverse, [`crate::smc::sample_refined`]);
+//!   without one, from the best draw after sampling ([`CalibratedParams`]);
 //! * `fisher.toml`: the Fisher information at that draw ([`crate::fisher`]): which combinations
 //!   of parameters the recordings pin down.
 
+use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use rlpkg_replay::{Likelihood, LikelihoodSettings, RolloutOutcome};
+use rlpkg_replay::{Likelihood, LikelihoodSettings, ReplayError, RolloutOutcome};
 
 use crate::cmaes::Generation;
 use crate::driver::{write_atomically, write_toml, CalibratedParams, FitSummary};
 use crate::evallog::{EvaluationLog, LogError, LoggedEvaluation};
 use crate::fisher::{fisher_information, FisherAnalysis};
 use crate::objective::{summarise, SimObjective};
-use crate::polish::polish;
+use crate::polish::{polish, Polished};
 use crate::posterior::quantile;
 use crate::posterior_files::samples_csv;
-use crate::smc::{self, SmcError, SmcSettings, Stage};
+use crate::smc::{self, Laplace, SmcError, SmcSettings, Stage};
 use crate::space::ParamSpace;
 
 /// The metric columns of a posterior's evaluation log, after `objective` (the log-likelihood).
@@ -61,6 +64,11 @@ pub const POSTERIOR_FILES: [&str; 8] = [
 /// Finite-difference step (unit cube) of the Fisher analysis at the best draw: small against the
 /// posterior's widths, large against the simulator's single-precision noise.
 const FISHER_STEP: f64 = 1e-3;
+
+/// Largest standard deviation (share of the box) of any direction of the Laplace reference that
+/// starts the sampler: a sloppy direction the recordings hardly see is left to the sampler's
+/// moves rather than spread over the whole box (assumption, not tuned).
+const LAPLACE_MAX_SD: f64 = 0.1;
 
 /// Errors of a sampled posterior.
 #[derive(Debug, thiserror::Error)]
@@ -121,7 +129,7 @@ pub struct SampledPosterior {
     pub independent_residuals: [f64; 2],
     /// Highest log-likelihood of the draws, or of the polished point when it is higher.
     pub best_log_likelihood: f64,
-    /// Candidates simulated by the polish after sampling (`smc.polish_iterations`).
+    /// Candidates simulated by the polish and its Fisher information (`smc.polish_iterations`).
     pub polished_evaluations: usize,
     /// The draws (SI values), in the search order.
     #[serde(skip)]
@@ -171,55 +179,89 @@ pub fn sample_posterior(
     let duration = objective.duration();
     // The likelihood's counts of the growing-horizon search's shorter starts, made once each.
     let mut starts: Vec<(f64, Likelihood)> = Vec::new();
-    let result = smc::sample(space.dim(), settings, duration, |batch, horizon, unit| {
-        let values: Vec<Vec<f64>> = unit.iter().map(|u| space.from_unit(u)).collect();
-        let rows = match logged_batches.get(batch) {
-            Some(rows) => {
-                let same = rows.len() == values.len()
-                    && rows.iter().zip(&values).all(|(r, v)| &r.params == v);
-                if !same {
-                    failure = Some(SampledPosteriorError::LogMismatch {
-                        path: log_path.clone(),
-                        batch,
-                    });
-                    return Err("the log does not match".into());
-                }
-                rows.clone()
-            }
-            None => {
-                let (outcomes, likelihood) = match horizon {
-                    None => (objective.rollouts(&values), likelihood),
-                    Some(h) => {
-                        let outcomes = objective
-                            .rollouts_within(h, &values)
-                            .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
-                        if !starts.iter().any(|(s, _)| *s == h) {
-                            let short = objective.targets_within(h).expect("rolled out above");
-                            starts.push((h, Likelihood::new(short, &settings_of_likelihood)));
-                        }
-                        let counts = starts.iter().find(|(s, _)| *s == h).expect("made above").1;
-                        (outcomes, counts)
+    // The sampler's batches and the refinement of its mode search both simulate; they take turns.
+    let shared = RefCell::new(objective);
+    // The refinement's polish, run before sampling (not logged: a resumed run repeats it, with
+    // the same result).
+    let mut refined: Option<(Polished, FisherAnalysis)> = None;
+    let refine = |best: &[f64]| {
+        if settings.polish_iterations == 0 {
+            return Ok(None);
+        }
+        let objective = &mut **shared.borrow_mut();
+        let start = space.from_unit(best);
+        let (polished, fisher) =
+            polish_with_information(objective, space, &settings_of_likelihood, &start, settings)
+                .map_err(|e| e.to_string())?;
+        // A diverged finite difference leaves no curvature to trust: the search's own reference.
+        let laplace = fisher.information.iter().all(|v| v.is_finite()).then(|| {
+            Laplace::from_information(
+                space.to_unit(&polished.point),
+                &fisher.information,
+                LAPLACE_MAX_SD,
+            )
+        });
+        refined = Some((polished, fisher));
+        Ok(laplace)
+    };
+    let sampled = smc::sample_refined(
+        space.dim(),
+        settings,
+        duration,
+        |batch, horizon, unit| {
+            let objective = &mut **shared.borrow_mut();
+            let values: Vec<Vec<f64>> = unit.iter().map(|u| space.from_unit(u)).collect();
+            let rows = match logged_batches.get(batch) {
+                Some(rows) => {
+                    let same = rows.len() == values.len()
+                        && rows.iter().zip(&values).all(|(r, v)| &r.params == v);
+                    if !same {
+                        failure = Some(SampledPosteriorError::LogMismatch {
+                            path: log_path.clone(),
+                            batch,
+                        });
+                        return Err("the log does not match".into());
                     }
-                };
-                let outcomes = outcomes.map_err(|e| e.to_string())?;
-                let mut rows = logged_rows(batch, &values, &outcomes, &likelihood, objective);
-                for row in &mut rows {
-                    row.metrics.push(horizon.unwrap_or(duration));
+                    rows.clone()
                 }
-                if let Err(e) = log.append(&rows) {
-                    failure = Some(e.into());
-                    return Err("the log could not be written".into());
+                None => {
+                    let (outcomes, likelihood) = match horizon {
+                        None => (objective.rollouts(&values), likelihood),
+                        Some(h) => {
+                            let outcomes = objective
+                                .rollouts_within(h, &values)
+                                .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
+                            if !starts.iter().any(|(s, _)| *s == h) {
+                                let short = objective.targets_within(h).expect("rolled out above");
+                                starts.push((h, Likelihood::new(short, &settings_of_likelihood)));
+                            }
+                            let counts =
+                                starts.iter().find(|(s, _)| *s == h).expect("made above").1;
+                            (outcomes, counts)
+                        }
+                    };
+                    let outcomes = outcomes.map_err(|e| e.to_string())?;
+                    let mut rows = logged_rows(batch, &values, &outcomes, &likelihood, objective);
+                    for row in &mut rows {
+                        row.metrics.push(horizon.unwrap_or(duration));
+                    }
+                    if let Err(e) = log.append(&rows) {
+                        failure = Some(e.into());
+                        return Err("the log could not be written".into());
+                    }
+                    rows
                 }
-                rows
-            }
-        };
-        evaluations += rows.len();
-        on_batch(batch, evaluations);
-        let ll = rows.iter().map(|r| r.objective).collect();
-        all.extend(rows);
-        Ok(ll)
-    });
-    let result = match (result, failure) {
+            };
+            evaluations += rows.len();
+            on_batch(batch, evaluations);
+            let ll = rows.iter().map(|r| r.objective).collect();
+            all.extend(rows);
+            Ok(ll)
+        },
+        refine,
+    );
+    let objective = shared.into_inner();
+    let result = match (sampled, failure) {
         (_, Some(failure)) => return Err(failure),
         (result, None) => result?,
     };
@@ -239,21 +281,29 @@ pub fn sample_posterior(
         best_row.metrics[2],
     ];
     let mut polished_evaluations = 0;
-    if settings.polish_iterations > 0 {
-        let polished = polish(
-            objective,
-            space,
-            &settings_of_likelihood,
-            &best_point,
-            settings.polish_iterations,
-        )
-        .map_err(|e| SampledPosteriorError::Smc(SmcError::Likelihood(e.to_string())))?;
-        polished_evaluations = polished.evaluations;
+    let mut fisher_at_best = None;
+    let polished = match refined {
+        Some(found) => Some(found),
+        None if settings.polish_iterations > 0 => Some(
+            polish_with_information(
+                objective,
+                space,
+                &settings_of_likelihood,
+                &best_point,
+                settings,
+            )
+            .map_err(|e| SampledPosteriorError::Smc(SmcError::Likelihood(e.to_string())))?,
+        ),
+        None => None,
+    };
+    if let Some((polished, fisher)) = polished {
+        polished_evaluations = polished.evaluations + 1 + space.dim();
         if polished.log_likelihood > best_log_likelihood {
             let summary = summarise(&polished.outcome, objective.weights());
             metrics = [summary.loss, summary.chamfer_m, summary.object_mse_m2];
             best_point = polished.point;
             best_log_likelihood = polished.log_likelihood;
+            fisher_at_best = Some(fisher);
         }
     }
     let best = CalibratedParams {
@@ -270,14 +320,17 @@ pub fn sample_posterior(
         },
     };
     let parameters = intervals(space, &result.draws, &best_point);
-    let fisher = fisher_information(
-        objective,
-        space,
-        &best_point,
-        &settings_of_likelihood,
-        FISHER_STEP,
-    )
-    .map_err(|e| SampledPosteriorError::Smc(SmcError::Likelihood(e.to_string())))?;
+    let fisher = match fisher_at_best {
+        Some(fisher) => fisher,
+        None => fisher_information(
+            objective,
+            space,
+            &best_point,
+            &settings_of_likelihood,
+            FISHER_STEP,
+        )
+        .map_err(|e| SampledPosteriorError::Smc(SmcError::Likelihood(e.to_string())))?,
+    };
     let posterior = SampledPosterior {
         parameters,
         evaluations: result.evaluations,
@@ -295,6 +348,26 @@ pub fn sample_posterior(
     };
     write_outputs(out_dir, space, &posterior)?;
     Ok(posterior)
+}
+
+/// `smc.polish_iterations` Levenberg–Marquardt steps from `start` (SI values), then the Fisher
+/// information at the point they reach.
+fn polish_with_information(
+    objective: &mut SimObjective,
+    space: &ParamSpace,
+    likelihood: &LikelihoodSettings,
+    start: &[f64],
+    settings: &SmcSettings,
+) -> Result<(Polished, FisherAnalysis), ReplayError> {
+    let polished = polish(
+        objective,
+        space,
+        likelihood,
+        start,
+        settings.polish_iterations,
+    )?;
+    let fisher = fisher_information(objective, space, &polished.point, likelihood, FISHER_STEP)?;
+    Ok((polished, fisher))
 }
 
 /// The log rows of one batch: log-likelihood and metrics of every candidate.
