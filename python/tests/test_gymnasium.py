@@ -152,3 +152,20 @@ def test_a_negative_or_non_integer_seed_raises_value_or_type_error():
         with pytest.raises(TypeError, match="seed="):
             reset(seed=1.5)
         reset(seed=0)
+
+
+def test_spec_gives_the_time_limit_and_render_modes_are_refused():
+    env = rlpkg.make("CartPole-v1")
+    assert env.spec.id == "rlpkg/CartPole-v1" and env.spec.max_episode_steps == 500
+    assert gymnasium.make(env.spec).spec.max_episode_steps == 500
+    rlpkg.register()
+    assert gymnasium.make("rlpkg/Pendulum-v1").spec.max_episode_steps == 200
+    with pytest.raises(NotImplementedError, match="rlpkg eval"):
+        env.render()
+    for make in (
+        lambda: rlpkg.make("CartPole-v1", render_mode="rgb_array"),
+        lambda: gymnasium.make("rlpkg/CartPole-v1", render_mode="human"),
+        lambda: gymnasium.make_vec("rlpkg/CartPole-v1", 2, render_mode="rgb_array"),
+    ):
+        with pytest.raises((ValueError, gymnasium.error.Error), match="render"):
+            make()

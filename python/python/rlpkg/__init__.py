@@ -10,7 +10,7 @@
   each action's clock rate.
 """
 
-from rlpkg._env import RlpkgEnv, make
+from rlpkg._env import RlpkgEnv, check_render_mode, make
 from rlpkg._native import IDS, ProfileReference, __version__, rust_rollout_digest
 from rlpkg._vector import RlpkgVectorEnv, default_transport_config, make_vec
 
@@ -53,5 +53,5 @@ def register() -> None:
 def _make_vec_entry(env_id, num_envs=1, **kwargs):
     """``gymnasium.make_vec``'s entry: it passes ``vectorization_mode`` and ``render_mode`` too."""
     kwargs.pop("vectorization_mode", None)
-    kwargs.pop("render_mode", None)
+    check_render_mode(kwargs.pop("render_mode", None))
     return make_vec(env_id, num_envs, **kwargs)

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import Any
 
 import gymnasium
 import numpy as np
+from gymnasium.envs.registration import EnvSpec
 
 from rlpkg import _native
 from rlpkg._spaces import single_spaces
@@ -37,6 +39,27 @@ class RlpkgEnv(gymnasium.Env):
         self.info_names = list(self.rlpkg_spec["info_names"])
         self._discrete_n = self.rlpkg_spec.get("action_n")
         self._action_shape = self.action_space.shape
+        kwargs = {"obs_mode": obs_mode} if config is None else {"config": os.fspath(config), "obs_mode": obs_mode}
+        self.spec = EnvSpec(id=f"rlpkg/{env_id}", entry_point="rlpkg:make", kwargs={"id": env_id, **kwargs})
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """Gymnasium's spec of this copy; its ``max_episode_steps`` is the environment's own time
+        limit (kept when ``gymnasium.make`` sets a spec of its own without one)."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: EnvSpec | None):
+        if value is not None and value.max_episode_steps is None:
+            value = dataclasses.replace(value, max_episode_steps=int(self.rlpkg_spec["max_episode_steps"]))
+        self._spec = value
+
+    def render(self):
+        """Not supported: rlpkg environments draw no frames (``rlpkg eval`` writes pictures and
+        animations of evaluated episodes)."""
+        raise NotImplementedError(
+            f"{self.rlpkg_spec['id']} has no renderer (render_modes: []); pictures of episodes: `rlpkg eval`"
+        )
 
     def _observation(self, obs, critic):
         if self.obs_mode == "dict":
@@ -80,6 +103,16 @@ class RlpkgEnv(gymnasium.Env):
 def make(id: str, **kwargs) -> RlpkgEnv:
     """One copy of ``id`` ("CartPole-v1", "Pendulum-v1", "Transport-v0") as a
     :class:`gymnasium.Env` without autoreset. Keywords: ``config`` (Transport-v0's configuration
-    file), ``obs_mode`` ("actor" or "dict"), ``num_threads``."""
-    kwargs.pop("render_mode", None)
+    file), ``obs_mode`` ("actor" or "dict"), ``num_threads``; ``render_mode`` only None (the
+    environments have no renderer)."""
+    check_render_mode(kwargs.pop("render_mode", None))
     return RlpkgEnv(id, **kwargs)
+
+
+def check_render_mode(render_mode) -> None:
+    """Refuses a render mode: no rlpkg environment draws frames."""
+    if render_mode is not None:
+        raise ValueError(
+            f"render_mode={render_mode!r}: rlpkg environments have no renderer; expected None "
+            "(pictures and animations of evaluated episodes: `rlpkg eval`)"
+        )
