@@ -17,6 +17,7 @@
 //! * [`mcmc`] — the affine-invariant ensemble sampler the posterior draws with;
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
 //! * [`config`] — `configs/calibrate/study.toml`;
+//! * [`seal_fit`] — the seal's capacity fitted to a dataset's failure flags (`configs/seal/*.toml`);
 //!
 //! The replay set-up (scene, targets, batched rollouts), the losses, the likelihood and the
 //! evaluation helpers live in `rlpkg-replay`, which this crate builds on.
@@ -36,5 +37,6 @@ pub mod posterior;
 pub mod posterior_files;
 pub mod recovery;
 pub mod sampled_posterior;
+pub mod seal_fit;
 pub mod smc;
 pub mod space;
