@@ -10,6 +10,7 @@
 //! * [`posterior`] — an approximate posterior from a calibration's evaluations (BOLFI);
 //! * [`validation`] — a posterior's draws replayed on the simulator, kept where they fit;
 //! * [`predictive`] — the posterior-predictive Table 1 of a posterior's draws;
+//! * [`spread_check`] — how far nudged replays move beside the recordings' marker noise;
 //! * [`posterior_files`] — a posterior folder's `samples.csv` and `summary.json`, read and written;
 //! * [`recovery`] — parameter recovery: calibrating synthetic recordings of known parameters back;
 //! * [`sampled_posterior`] — a calibration that returns the posterior (SMC on the simulator);
@@ -43,4 +44,5 @@ pub mod sampled_posterior;
 pub mod seal_fit;
 pub mod smc;
 pub mod space;
+pub mod spread_check;
 pub mod validation;
