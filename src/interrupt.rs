@@ -55,6 +55,15 @@ pub fn requested() -> bool {
     REQUESTED.load(Ordering::SeqCst)
 }
 
+/// A replay's observer that stops the rollout once a signal asked the command to stop.
+pub struct Interruptible;
+
+impl rlpkg_replay::Observer for Interruptible {
+    fn stop(&mut self) -> bool {
+        requested()
+    }
+}
+
 /// `Err(Interrupted)` once a signal asked the command to stop.
 pub fn check() -> anyhow::Result<()> {
     if requested() {

@@ -10,7 +10,7 @@ use serde::Deserialize;
 use crate::bo::{Acquisition, BoSettings};
 use crate::smc::SmcSettings;
 use crate::space::{ParamSpace, ParamSpec};
-use rlpkg_mocap::{Dataset, Split};
+use rlpkg_mocap::{Dataset, Split, Trajectory};
 use rlpkg_replay::loss::LossWeights;
 use rlpkg_replay::LikelihoodSettings;
 use rlpkg_sim::SceneConfig;
@@ -57,6 +57,16 @@ pub fn repeated_id(ids: &[String]) -> Option<(usize, &String)> {
     ids.iter()
         .enumerate()
         .find(|(i, id)| ids[..*i].contains(id))
+}
+
+/// Refuses `ids` (given as `option`, e.g. `--trajectories`) when one is listed twice.
+pub fn check_unique_ids(option: &str, ids: &[String]) -> Result<(), String> {
+    match repeated_id(ids) {
+        Some((_, id)) => Err(format!(
+            "{option}: {id} is listed twice; expected each trajectory id once"
+        )),
+        None => Ok(()),
+    }
 }
 
 /// Simulator settings of the calibration.
@@ -384,6 +394,18 @@ impl CalibrateConfig {
         Ok(ids)
     }
 
+    /// The ids and recordings the calibration fits ([`CalibrateConfig::trajectory_ids`] of its
+    /// dataset `data`).
+    pub fn training_trajectories(&self) -> Result<(Vec<String>, Vec<Trajectory>), String> {
+        let dataset = Dataset::open(&self.data).map_err(|e| e.to_string())?;
+        let ids = self.trajectory_ids(&dataset)?;
+        let trajectories = ids
+            .iter()
+            .map(|id| dataset.load(id).map_err(|e| e.to_string()))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok((ids, trajectories))
+    }
+
     /// The `[optimiser]` table of a Bayesian-optimisation config (validated: present unless the
     /// config has `[smc]`, which callers check first).
     pub fn optimiser(&self) -> &OptimiserSettings {
@@ -453,6 +475,34 @@ upper = 2.0
 
     fn parse(text: &str) -> Result<CalibrateConfig, ConfigError> {
         CalibrateConfig::parse(text, Path::new("calibrate.toml"))
+    }
+
+    #[test]
+    fn a_repeated_id_is_refused_naming_the_option() {
+        let ids: Vec<String> = ["A", "B", "A"].map(String::from).to_vec();
+        assert_eq!(
+            check_unique_ids("--trajectories", &ids).unwrap_err(),
+            "--trajectories: A is listed twice; expected each trajectory id once"
+        );
+        assert!(check_unique_ids("--trajectories", &ids[..2]).is_ok());
+    }
+
+    #[test]
+    fn training_trajectories_are_the_listed_ones_else_the_train_split() {
+        let mut config = parse(GOOD).unwrap();
+        config.data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
+        let (ids, trajectories) = config.training_trajectories().unwrap();
+        assert_eq!(ids, ["HHHHH", "HHLHL"]);
+        let loaded: Vec<&str> = trajectories.iter().map(|t| t.id.as_str()).collect();
+        assert_eq!(loaded, ids);
+        config.trajectories = None;
+        let dataset = Dataset::open(&config.data).unwrap();
+        let (ids, trajectories) = config.training_trajectories().unwrap();
+        assert_eq!(ids, dataset.ids(Some(Split::Train)));
+        assert_eq!(trajectories.len(), ids.len());
+        config.trajectories = Some(vec!["NOPE".into()]);
+        let err = config.training_trajectories().unwrap_err();
+        assert!(err.contains("NOPE"), "{err}");
     }
 
     #[test]

@@ -8,6 +8,9 @@
 //! * [`fisher`] — identifiability at a fit: the Fisher information's eigen-directions;
 //! * [`fingerprint`] — the objective a calibration folder fits, checked when it is resumed;
 //! * [`posterior`] — an approximate posterior from a calibration's evaluations (BOLFI);
+//! * [`validation`] — a posterior's draws replayed on the simulator, kept where they fit;
+//! * [`predictive`] — the posterior-predictive Table 1 of a posterior's draws;
+//! * [`spread_check`] — how far nudged replays move beside the recordings' marker noise;
 //! * [`posterior_files`] — a posterior folder's `samples.csv` and `summary.json`, read and written;
 //! * [`recovery`] — parameter recovery: calibrating synthetic recordings of known parameters back;
 //! * [`sampled_posterior`] — a calibration that returns the posterior (SMC on the simulator);
@@ -17,6 +20,7 @@
 //! * [`mcmc`] — the affine-invariant ensemble sampler the posterior draws with;
 //! * [`objective`] — the batched-simulator objective (candidates x trajectories = environments);
 //! * [`config`] — `configs/calibrate/study.toml`;
+//! * [`seal_fit`] — the seal's capacity fitted to a dataset's failure flags (`configs/seal/*.toml`);
 //!
 //! The replay set-up (scene, targets, batched rollouts), the losses, the likelihood and the
 //! evaluation helpers live in `rlpkg-replay`, which this crate builds on.
@@ -34,7 +38,11 @@ pub mod objective;
 pub mod polish;
 pub mod posterior;
 pub mod posterior_files;
+pub mod predictive;
 pub mod recovery;
 pub mod sampled_posterior;
+pub mod seal_fit;
 pub mod smc;
 pub mod space;
+pub mod spread_check;
+pub mod validation;

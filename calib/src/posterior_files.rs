@@ -239,6 +239,33 @@ impl Samples {
         Ok(())
     }
 
+    /// Reads the `samples.csv` at `path` ([`Samples::read`]) and refuses it unless its columns
+    /// are `names` in that order ([`Samples::expect_columns`]).
+    pub fn read_columns(path: &Path, names: &[String]) -> Result<Self, PosteriorFileError> {
+        let samples = Self::read(path)?;
+        samples.expect_columns(path, names)?;
+        Ok(samples)
+    }
+
+    /// `draws` row indices evenly spaced through the draws (the first one first), refused when
+    /// there are fewer; `path` names the file and `option` the count asked for (e.g. `--draws`)
+    /// in the message.
+    pub fn evenly_spaced_rows(
+        &self,
+        path: &Path,
+        draws: usize,
+        option: &str,
+    ) -> Result<Vec<usize>, PosteriorFileError> {
+        let available = self.rows.len();
+        if available < draws {
+            return Err(file_error(
+                path,
+                format!("{available} draws; expected at least {option} {draws}"),
+            ));
+        }
+        Ok((0..draws).map(|i| i * available / draws).collect())
+    }
+
     /// The draws as the simulator's randomisation takes them (single precision).
     pub fn to_draws(&self) -> PosteriorDraws {
         PosteriorDraws {
@@ -451,5 +478,32 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(other.contains("k_tri_e,mu_con"), "{other}");
+        assert!(Samples::read_columns(&path, &names).is_ok());
+        let err = Samples::read_columns(&path, &names[1..])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("has `k_tri_e,mu_con`"), "{err}");
+    }
+
+    #[test]
+    fn rows_are_spread_evenly_and_too_many_are_refused() {
+        let samples = Samples {
+            names: vec!["k_tri_e".into()],
+            rows: (1..=10).map(|v| vec![f64::from(v)]).collect(),
+        };
+        let path = Path::new("s.csv");
+        assert_eq!(
+            samples.evenly_spaced_rows(path, 4, "--draws").unwrap(),
+            [0, 2, 5, 7]
+        );
+        assert_eq!(
+            samples.evenly_spaced_rows(path, 10, "--draws").unwrap(),
+            (0..10).collect::<Vec<_>>()
+        );
+        let err = samples
+            .evenly_spaced_rows(path, 11, "--validate")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(err, "s.csv: 10 draws; expected at least --validate 11");
     }
 }

@@ -13,8 +13,9 @@ use std::sync::Arc;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rlpkg_mocap::Dataset;
 use rlpkg_replay::loss::LossWeights;
-use rlpkg_replay::synthetic::{synthetic_targets, Observation};
+use rlpkg_replay::synthetic::{marker_noise_std, synthetic_targets, Observation};
 use rlpkg_replay::{ReplayError, Target};
 use rlpkg_sim::{Model, SceneConfig};
 
@@ -88,6 +89,28 @@ pub struct TruthRecovery {
     pub parameters: Vec<ParameterRecovery>,
     /// The posterior's full summary.
     pub posterior: PosteriorSummary,
+}
+
+/// A recovery's recordings: `ids` of `dataset` prepared for replay on `scene` (their first
+/// `max_seconds`), and the level of their marker noise the synthetic ones get: the median over
+/// them of [`marker_noise_std`] (`None` when none is long enough to estimate it).
+pub fn recordings(
+    dataset: &Dataset,
+    ids: &[String],
+    scene: &SceneConfig,
+    max_seconds: Option<f64>,
+) -> Result<(Vec<Target>, Option<f64>), ReplayError> {
+    let targets = ids
+        .iter()
+        .map(|id| {
+            let trajectory = dataset.load(id)?;
+            Target::new(&trajectory, max_seconds, scene.disc.hold_at_recorded_start)
+        })
+        .collect::<Result<Vec<_>, ReplayError>>()?;
+    let mut noises: Vec<f64> = targets.iter().filter_map(marker_noise_std).collect();
+    noises.sort_by(f64::total_cmp);
+    let noise_std_m = noises.get(noises.len() / 2).copied();
+    Ok((targets, noise_std_m))
 }
 
 /// `count` truths drawn uniformly from the central [`TRUTH_SPAN`] of the unit cube (log-uniform
@@ -471,6 +494,30 @@ mod tests {
     use super::*;
     use crate::space::ParamSpec;
     use rlpkg_replay::load_scene;
+
+    #[test]
+    fn recordings_carry_their_median_noise_and_a_short_one_none() {
+        let root =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
+        let dataset = Dataset::open(&root).unwrap();
+        let scene = load_scene("reference", Some(0), None).unwrap();
+        let ids: Vec<String> = ["HHHHH", "HHLHL", "HHHHM"].map(String::from).to_vec();
+        let (targets, noise) = recordings(&dataset, &ids, &scene, Some(1.0)).unwrap();
+        assert_eq!(targets.len(), 3);
+        let mut each: Vec<f64> = targets
+            .iter()
+            .map(|t| marker_noise_std(t).unwrap())
+            .collect();
+        each.sort_by(f64::total_cmp);
+        assert_eq!(noise, Some(each[1]));
+        let (_, short) = recordings(&dataset, &ids[..1], &scene, Some(0.005)).unwrap();
+        assert_eq!(
+            short, None,
+            "two frames give no second differences to speak of"
+        );
+        let missing = recordings(&dataset, &["NOPE".to_string()], &scene, None);
+        assert!(missing.is_err());
+    }
 
     fn recorded(id: &str) -> rlpkg_mocap::Trajectory {
         let root =

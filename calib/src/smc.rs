@@ -70,6 +70,22 @@ pub struct SmcSettings {
     pub polish_iterations: usize,
 }
 
+impl SmcSettings {
+    /// "CMA-ES mode search (P x at most G generations), then " when the sampler has one, for a
+    /// sentence describing the sampler; empty otherwise.
+    pub fn mode_search_text(&self) -> String {
+        self.mode_search.map_or(String::new(), |m| {
+            let horizon = m.first_horizon_s.map_or(String::new(), |h| {
+                format!(" per horizon, from the first {h} s doubling to the whole recordings")
+            });
+            format!(
+                "CMA-ES mode search ({} x at most {} generations{horizon}), then ",
+                m.population, m.generations
+            )
+        })
+    }
+}
+
 fn default_ess_fraction() -> f64 {
     0.5
 }
@@ -674,6 +690,33 @@ mod tests {
             mode_search: None,
             polish_iterations: 0,
         }
+    }
+
+    #[test]
+    fn the_mode_search_is_described_with_its_horizons() {
+        assert_eq!(settings(0).mode_search_text(), "");
+        let search = ModeSearchSettings {
+            population: 16,
+            generations: 50,
+            initial_step: 0.3,
+            reference_scale: 2.0,
+            first_horizon_s: None,
+        };
+        let mut with = SmcSettings {
+            mode_search: Some(search),
+            ..settings(0)
+        };
+        assert_eq!(
+            with.mode_search_text(),
+            "CMA-ES mode search (16 x at most 50 generations), then "
+        );
+        with.mode_search = Some(ModeSearchSettings {
+            first_horizon_s: Some(0.5),
+            ..search
+        });
+        assert!(with
+            .mode_search_text()
+            .contains("generations per horizon, from the first 0.5 s doubling"));
     }
 
     /// A correlated 2-D Gaussian likelihood well inside the unit square: the posterior is that

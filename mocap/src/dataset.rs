@@ -92,6 +92,17 @@ pub enum Split {
     Excluded,
 }
 
+impl Split {
+    /// The split as the manifest names it: `train`, `test` or `excluded`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::Test => "test",
+            Split::Excluded => "excluded",
+        }
+    }
+}
+
 impl std::str::FromStr for Split {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
@@ -1083,6 +1094,14 @@ mod tests {
 
     fn shipped() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real")
+    }
+
+    #[test]
+    fn split_names_are_the_manifests() {
+        for split in [Split::Train, Split::Test, Split::Excluded] {
+            let written = serde_json::to_string(&split).unwrap();
+            assert_eq!(written, format!("\"{}\"", split.name()));
+        }
     }
 
     #[test]

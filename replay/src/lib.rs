@@ -10,6 +10,8 @@
 //! * [`loss`]: the comparison with the recording: the package Chamfer distance (the one
 //!   implementation in the workspace), the labelled site error, the object error, the paper's
 //!   Table 1;
+//! * [`package_scene`]: a scene from a take collection's `manifest.json` (geometry from the
+//!   manifest, the rest from a base scene);
 //! * [`phase`]: the phases of a recorded motion (rest, lift, move, tilt, hold);
 //! * [`likelihood`]: the labelled, phase-balanced log-likelihood a posterior samples;
 //! * [`seal`]: seal calibration: every recording under a grid of seal capacities against the
@@ -27,6 +29,7 @@ pub mod error;
 pub mod evaluate;
 pub mod likelihood;
 pub mod loss;
+pub mod package_scene;
 pub mod phase;
 pub mod rollout;
 pub mod seal;

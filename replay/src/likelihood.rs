@@ -63,6 +63,19 @@ impl Default for LikelihoodSettings {
     }
 }
 
+impl LikelihoodSettings {
+    /// How many replays of each candidate the likelihood averages, as a sentence.
+    pub fn replicas_text(&self) -> String {
+        match self.replicas {
+            1 => "likelihood of one replay per candidate".to_string(),
+            r => format!(
+                "likelihood averaged over {r} replays per candidate (values x (1 +- {:.0e}) after the first)",
+                self.replica_jitter
+            ),
+        }
+    }
+}
+
 /// The mean of likelihoods given by their logarithms, as a logarithm (`−∞` when every one is).
 pub fn log_mean_exp(log_values: &[f64]) -> f64 {
     let top = log_values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -170,6 +183,24 @@ mod tests {
 
     use crate::rollout::{rollout, set_param, Candidate};
     use crate::synthetic::{synthetic_targets, Observation};
+
+    #[test]
+    fn replicas_are_described_with_their_jitter() {
+        let one = LikelihoodSettings::default();
+        assert_eq!(
+            one.replicas_text(),
+            "likelihood of one replay per candidate"
+        );
+        let three = LikelihoodSettings {
+            replicas: 3,
+            replica_jitter: 1e-6,
+            ..one
+        };
+        assert_eq!(
+            three.replicas_text(),
+            "likelihood averaged over 3 replays per candidate (values x (1 +- 1e-6) after the first)"
+        );
+    }
     use crate::{load_scene, Target};
 
     #[test]

@@ -14,12 +14,12 @@ use std::time::Instant;
 
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use rlpkg_calib::config::CalibrateConfig;
+use rlpkg_calib::config::{check_unique_ids, CalibrateConfig};
 use rlpkg_calib::driver::{self, CalibratedParams, Plan};
 use rlpkg_calib::fingerprint::{self, ObjectiveRecord};
 use rlpkg_calib::objective::{Observer, SimObjective};
 use rlpkg_calib::posterior_files;
-use rlpkg_mocap::{Dataset, Trajectory};
+use rlpkg_mocap::Trajectory;
 use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
 
@@ -66,7 +66,7 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         )));
     }
     check_write_params(&args, &config)?;
-    let (ids, trajectories) = training_trajectories(&config)?;
+    let (ids, trajectories) = config.training_trajectories().map_err(input_error)?;
     let scene = config.scene(&args.config).map_err(input_error)?;
     check_bounds_in_scene(&config, &scene, &args.config)?;
     // One command at a time in the output folder: nothing in it is removed (`--fresh`, leftovers)
@@ -237,30 +237,6 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// How many replays of each candidate the likelihood averages.
-pub(crate) fn replicas_text(likelihood: &rlpkg_replay::LikelihoodSettings) -> String {
-    match likelihood.replicas {
-        1 => "likelihood of one replay per candidate".to_string(),
-        r => format!(
-            "likelihood averaged over {r} replays per candidate (values x (1 +- {:.0e}) after the first)",
-            likelihood.replica_jitter
-        ),
-    }
-}
-
-/// "CMA-ES mode search (P x at most G generations), then " when the sampler has one.
-pub(crate) fn mode_search_text(smc: &rlpkg_calib::smc::SmcSettings) -> String {
-    smc.mode_search.map_or(String::new(), |m| {
-        let horizon = m.first_horizon_s.map_or(String::new(), |h| {
-            format!(" per horizon, from the first {h} s doubling to the whole recordings")
-        });
-        format!(
-            "CMA-ES mode search ({} x at most {} generations{horizon}), then ",
-            m.population, m.generations
-        )
-    })
-}
-
 /// `rlpkg calibrate` of a config with `[smc]`: samples the posterior on the simulator
 /// ([`rlpkg_calib::sampled_posterior`]), resuming the folder's log, and writes the draws, their
 /// summary and the best draw's scene.
@@ -312,12 +288,12 @@ fn run_posterior(
         scene.package.grid[0],
         scene.package.grid[1],
         scene.dt(),
-        mode_search_text(&smc),
+        smc.mode_search_text(),
         smc.particles,
         smc.moves,
         out_dir.display()
     );
-    println!("{}", replicas_text(&config.likelihood));
+    println!("{}", config.likelihood.replicas_text());
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let bar = ProgressBar::new_spinner().with_style(
         ProgressStyle::with_template("{elapsed_precise} {msg}").expect("valid template"),
@@ -449,30 +425,6 @@ fn remove_outputs(out_dir: &Path, files: &[&str]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--trajectories` lists each id once.
-pub(crate) fn check_unique_trajectories(ids: &[String]) -> anyhow::Result<()> {
-    match rlpkg_calib::config::repeated_id(ids) {
-        Some((_, id)) => Err(input_error(format!(
-            "--trajectories: {id} is listed twice; expected each trajectory id once"
-        ))),
-        None => Ok(()),
-    }
-}
-
-/// The ids and recordings a calibration fits: `trajectories` of `config`, or its dataset's
-/// training split.
-pub(crate) fn training_trajectories(
-    config: &CalibrateConfig,
-) -> anyhow::Result<(Vec<String>, Vec<Trajectory>)> {
-    let dataset = Dataset::open(&config.data).map_err(input_error)?;
-    let ids = config.trajectory_ids(&dataset).map_err(input_error)?;
-    let trajectories = ids
-        .iter()
-        .map(|id| dataset.load(id).map_err(input_error))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok((ids, trajectories))
-}
-
 /// Removes what a calibration that stopped before logging its first batch wrote (the objective,
 /// the log's header; the folder, when the command made it, goes with its lock): a start that
 /// failed or was interrupted leaves the output as it was. Best effort: what cannot be removed is a
@@ -573,7 +525,7 @@ fn apply_overrides(config: &mut CalibrateConfig, args: &CalibrateArgs) -> anyhow
         config.optimiser_mut().iterations = n;
     }
     if !args.trajectories.is_empty() {
-        check_unique_trajectories(&args.trajectories)?;
+        check_unique_ids("--trajectories", &args.trajectories).map_err(input_error)?;
         config.trajectories = Some(args.trajectories.clone());
     }
     if let Some(s) = args.max_seconds {

@@ -11,6 +11,7 @@
 
 mod onnx;
 mod params;
+mod predictive;
 mod transport;
 
 pub(crate) use transport::replaced_packages_line;

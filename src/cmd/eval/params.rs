@@ -8,7 +8,7 @@
 //! `--sweep-grid` adds Table 2 (grid, particles, real-time factor, CD, MSE) and `--perturb 10,20`
 //! the sensitivity table (every calibrated value scaled up by that percentage, as the study did).
 //! A posterior (`summary.json` or `samples.csv` of `rlpkg posterior`) instead gives the
-//! posterior-predictive Table 1 ([`crate::cmd::posterior::predictive`]).
+//! posterior-predictive Table 1 ([`super::predictive`]).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -24,7 +24,7 @@ use rlpkg_replay::{
 use rlpkg_sim::{Model, SceneConfig};
 use serde::Serialize;
 
-use crate::cmd::posterior::predictive::PredictiveArgs;
+use super::predictive::PredictiveArgs;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 use crate::render::plot::{write_loss_plot, write_marker_error_plot};
@@ -100,7 +100,7 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
                 params_path.display()
             )));
         }
-        return crate::cmd::posterior::predictive::run(&PredictiveArgs {
+        return super::predictive::run(&PredictiveArgs {
             posterior: params_path,
             draws: args.draws.unwrap_or(DEFAULT_DRAWS),
             split: args.split.as_deref().unwrap_or("test"),
@@ -219,7 +219,7 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
                 .filter(|((s, _), _)| *s == split)
                 .map(|(_, o)| o.loss.clone())
                 .collect();
-            Table1Row::from_losses(split_name(split), &losses)
+            Table1Row::from_losses(split.name(), &losses)
         })
         .collect();
     let trajectories = selected
@@ -227,7 +227,7 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
         .zip(outcomes)
         .map(|((split, _), o)| TrajectorySummary {
             id: o.loss.id.clone(),
-            split: split_name(*split).into(),
+            split: split.name().into(),
             frames: o.loss.frames.len(),
             chamfer_mean_m: o.loss.mean_chamfer(),
             object_mse_mean_m2: o.loss.mean_object_sq(),
@@ -282,14 +282,6 @@ pub fn run(args: &super::EvalArgs) -> anyhow::Result<()> {
         print_summary(&summary, &out);
     }
     Ok(())
-}
-
-fn split_name(split: Split) -> &'static str {
-    match split {
-        Split::Train => "train",
-        Split::Test => "test",
-        Split::Excluded => "excluded",
-    }
 }
 
 fn print_summary(s: &Summary, out: &Path) {

@@ -6,15 +6,12 @@
 //! sampler's figures) and `profiles.csv` (the surrogate loss along each parameter), and prints the
 //! identifiability table.
 //!
-//! - [`predictive`]: `rlpkg eval --params <summary.json or samples.csv>`, the posterior-predictive
-//!   Table 1;
 //! - [`recover`]: `rlpkg posterior CONFIG --recover K`, the parameter-recovery table;
 //! - [`validate`]: `rlpkg posterior CONFIG --validate N`, the draws replayed on the simulator and
 //!   kept where they fit;
 //! - [`spread`]: `rlpkg posterior CONFIG --spread NUDGE`, how far the replays move under a nudge
 //!   of the parameters far below what the recordings resolve.
 
-pub mod predictive;
 mod recover;
 mod spread;
 mod validate;
@@ -153,7 +150,8 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
     let mut evaluations = posterior::read_evaluations(&log_path, &space)
         .map_err(|e| input_error(format!("{e} (parameters of {})", args.config.display())))?;
     for path in &args.replays {
-        let replayed = validate::read_replayed(path, &config)?;
+        let replayed = rlpkg_calib::validation::read_replayed(path, &config)
+            .map_err(validate::validation_error)?;
         println!(
             "with {} replayed draws of {}",
             replayed.len(),

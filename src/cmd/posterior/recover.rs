@@ -8,12 +8,11 @@
 
 use std::time::Instant;
 
-use rlpkg_calib::config::CalibrateConfig;
+use rlpkg_calib::config::{check_unique_ids, CalibrateConfig};
 use rlpkg_calib::driver;
 use rlpkg_calib::posterior::PosteriorSettings;
 use rlpkg_calib::recovery::{self, RecoveryError, RecoverySettings};
 use rlpkg_mocap::{Dataset, Split};
-use rlpkg_replay::synthetic::marker_noise_std;
 use rlpkg_replay::Target;
 use serde::Serialize;
 
@@ -70,7 +69,7 @@ pub fn run(
     }
     let dataset = Dataset::open(&config.data).map_err(input_error)?;
     let ids = if !args.trajectories.is_empty() {
-        crate::cmd::calibrate::check_unique_trajectories(&args.trajectories)?;
+        check_unique_ids("--trajectories", &args.trajectories).map_err(input_error)?;
         args.trajectories.clone()
     } else if let Some(ids) = &config.trajectories {
         ids.clone()
@@ -84,22 +83,10 @@ pub fn run(
         )));
     }
     let scene = config.scene(&args.config).map_err(input_error)?;
-    let targets = ids
-        .iter()
-        .map(|id| {
-            let trajectory = dataset.load(id).map_err(input_error)?;
-            Target::new(
-                &trajectory,
-                config.sim.max_seconds,
-                scene.disc.hold_at_recorded_start,
-            )
-            .map_err(input_error)
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    // The real recordings' noise level: the median over the trajectories of their estimates.
-    let mut noises: Vec<f64> = targets.iter().filter_map(marker_noise_std).collect();
-    noises.sort_by(f64::total_cmp);
-    let Some(&noise_std_m) = noises.get(noises.len() / 2) else {
+    let (targets, noise_std_m) =
+        recovery::recordings(&dataset, &ids, &scene, config.sim.max_seconds)
+            .map_err(input_error)?;
+    let Some(noise_std_m) = noise_std_m else {
         return Err(input_error(format!(
             "trajectories {}: too few frames to estimate the marker noise (a longer --max-seconds)",
             ids.join(",")
@@ -208,7 +195,7 @@ fn run_sampled(
         "recovering {truths} truth(s) of {} parameter(s) with a sampled posterior ({}{} particles x {} moves) \
          on {} synthetic trajectory(ies) [{}], marker noise {:.3} mm per axis; output in {}",
         space.dim(),
-        crate::cmd::calibrate::mode_search_text(&smc),
+        smc.mode_search_text(),
         smc.particles,
         smc.moves,
         ids.len(),
@@ -216,10 +203,7 @@ fn run_sampled(
         1e3 * noise_std_m,
         out.display()
     );
-    println!(
-        "{}",
-        crate::cmd::calibrate::replicas_text(&config.likelihood)
-    );
+    println!("{}", config.likelihood.replicas_text());
     let _cooperation = crate::interrupt::Cooperation::start();
     let started = Instant::now();
     let mut recoveries = Vec::with_capacity(truths);
