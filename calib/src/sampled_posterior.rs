@@ -405,7 +405,8 @@ fn sample_with(
                 }
                 None => {
                     let evaluated = evaluate(objective, batch, horizon, &values)?;
-                    if let Err(message) = check_rows(&evaluated, values.len()) {
+                    let horizon_s = horizon.unwrap_or(duration);
+                    if let Err(message) = check_rows(&evaluated, values.len(), horizon_s) {
                         failure = Some(SampledPosteriorError::Evaluator { batch, message });
                         return Err("the batch's rows do not fit it".into());
                     }
@@ -572,26 +573,32 @@ fn candidate_row(
     }
 }
 
-/// Whether an evaluator's `rows` fit a batch of `candidates`: one each, every metric present.
-fn check_rows(rows: &[CandidateRow], candidates: usize) -> Result<(), String> {
+/// Whether an evaluator's `rows` fit a batch of `candidates` scored on recordings `horizon_s`
+/// long: one each, every metric present, the horizon that one (the best draw is found by it).
+fn check_rows(rows: &[CandidateRow], candidates: usize, horizon_s: f64) -> Result<(), String> {
     if rows.len() != candidates {
         return Err(format!(
             "{} rows for {candidates} candidates; expected one per candidate",
             rows.len()
         ));
     }
-    match rows
-        .iter()
-        .position(|r| r.metrics.len() != POSTERIOR_METRICS.len())
-    {
-        Some(k) => Err(format!(
-            "candidate {k} has {} metrics; expected {} ({})",
-            rows[k].metrics.len(),
-            POSTERIOR_METRICS.len(),
-            POSTERIOR_METRICS.join(", ")
-        )),
-        None => Ok(()),
+    for (k, row) in rows.iter().enumerate() {
+        if row.metrics.len() != POSTERIOR_METRICS.len() {
+            return Err(format!(
+                "candidate {k} has {} metrics; expected {} ({})",
+                row.metrics.len(),
+                POSTERIOR_METRICS.len(),
+                POSTERIOR_METRICS.join(", ")
+            ));
+        }
+        let scored = row.metrics[POSTERIOR_METRICS.len() - 1];
+        if scored != horizon_s {
+            return Err(format!(
+                "candidate {k} has horizon_s = {scored}; expected {horizon_s} (the batch's horizon)"
+            ));
+        }
     }
+    Ok(())
 }
 
 /// Median, 90 % interval and box share of each coordinate of `unit_draws`.
@@ -805,36 +812,40 @@ mod tests {
         assert!(log.contains(",0.025\n") && log.contains(",0.05\n"), "{log}");
     }
 
-    /// Drops the last row of every batch, or fails.
-    struct Faulty {
-        fail: bool,
+    /// What an evaluator gets wrong.
+    #[derive(Clone, Copy)]
+    enum Fault {
+        Fails,
+        DropsARow,
+        WrongHorizon,
     }
 
-    impl BatchEvaluator for Faulty {
+    impl BatchEvaluator for Fault {
         fn evaluate(
             &mut self,
-            _: Option<f64>,
+            horizon: Option<f64>,
             candidates: &[Vec<f64>],
         ) -> Result<Vec<CandidateRow>, String> {
-            if self.fail {
-                return Err("the workers are gone".into());
-            }
-            let row = CandidateRow {
+            let row = |horizon_s: f64| CandidateRow {
                 log_likelihood: 0.0,
-                metrics: vec![0.0; POSTERIOR_METRICS.len()],
+                metrics: vec![0.0, 0.0, 0.0, 0.0, horizon_s],
             };
-            Ok(vec![row; candidates.len() - 1])
+            match self {
+                Fault::Fails => Err("the workers are gone".into()),
+                Fault::DropsARow => Ok(vec![row(horizon.unwrap()); candidates.len() - 1]),
+                Fault::WrongHorizon => Ok(vec![row(0.05); candidates.len()]),
+            }
         }
     }
 
     #[test]
-    fn an_evaluator_that_fails_or_drops_a_row_is_an_error_naming_the_batch() {
+    fn an_evaluator_that_fails_or_gives_rows_that_do_not_fit_is_an_error_naming_the_batch() {
         let likelihood = LikelihoodSettings::default();
         let dir = tempfile::tempdir().unwrap();
-        let run = |fail: bool| {
+        let run = |mut fault: Fault| {
             sample_posterior_through(
                 &mut small_objective(),
-                &mut Faulty { fail },
+                &mut fault,
                 &space(),
                 &settings(),
                 &likelihood,
@@ -844,16 +855,20 @@ mod tests {
             .unwrap_err()
             .to_string()
         };
-        let dropped = run(false);
         assert_eq!(
-            dropped,
+            run(Fault::DropsARow),
             "batch 0: 3 rows for 4 candidates; expected one per candidate"
+        );
+        // The search's first batch scores the first 0.025 s.
+        assert_eq!(
+            run(Fault::WrongHorizon),
+            "batch 0: candidate 0 has horizon_s = 0.05; expected 0.025 (the batch's horizon)"
         );
         // Nothing of the batch was logged.
         let log = std::fs::read_to_string(dir.path().join("evaluations.csv")).unwrap();
         assert_eq!(log.lines().count(), 1, "{log}");
         assert_eq!(
-            run(true),
+            run(Fault::Fails),
             "likelihood: batch 0: the workers are gone",
             "the evaluator's own error"
         );
