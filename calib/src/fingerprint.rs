@@ -10,6 +10,8 @@ use rlpkg_replay::loss::LossWeights;
 use rlpkg_sim::SceneConfig;
 use serde::Serialize;
 
+use crate::config::CalibrateConfig;
+use crate::smc::SmcSettings;
 use crate::space::ParamSpec;
 
 /// The file, in the output folder, that records the objective.
@@ -72,7 +74,30 @@ pub enum FingerprintError {
     },
 }
 
-impl ObjectiveRecord<'_> {
+impl<'a> ObjectiveRecord<'a> {
+    /// The record of a sampled posterior of `config` (its `[smc]` settings `smc`) on
+    /// `trajectories` in `scene`: every batch holds `smc.particles` candidates.
+    pub fn posterior(
+        config: &'a CalibrateConfig,
+        smc: SmcSettings,
+        trajectories: &'a [String],
+        scene: &'a SceneConfig,
+    ) -> Self {
+        Self {
+            data: &config.data,
+            trajectories,
+            max_seconds: config.sim.max_seconds,
+            seed: smc.seed,
+            initial_points: smc.particles,
+            batch_size: smc.particles,
+            loss: config.loss,
+            param: &config.params,
+            smc: Some(smc),
+            likelihood: Some(config.likelihood),
+            scene,
+        }
+    }
+
     /// The record as TOML text.
     pub fn to_text(&self) -> Result<String, FingerprintError> {
         let body = toml::to_string_pretty(self).map_err(|e| FingerprintError::Io {

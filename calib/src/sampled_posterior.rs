@@ -19,6 +19,12 @@
 //!   without one, from the best draw after sampling ([`CalibratedParams`]);
 //! * `fisher.toml`: the Fisher information at that draw ([`crate::fisher`]): which combinations
 //!   of parameters the recordings pin down.
+//!
+//! The sampler's batches are simulated by a [`BatchEvaluator`]: [`sample_posterior`] on the
+//! driver's own objective ([`SimBatches`]), [`sample_posterior_through`] by any other that gives
+//! the same rows (Ray tasks through the Python calibration objective, `docs/python.md`). The
+//! polish and the Fisher information always run on the driver's objective: they are a few
+//! sequential rollouts, not batches worth sending away.
 
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
@@ -30,6 +36,7 @@ use rlpkg_replay::{Likelihood, LikelihoodSettings, ReplayError, RolloutOutcome};
 use crate::cmaes::Generation;
 use crate::driver::{write_atomically, write_toml, CalibratedParams, FitSummary};
 use crate::evallog::{EvaluationLog, LogError, LoggedEvaluation};
+use crate::fingerprint::{FingerprintError, OBJECTIVE_FILE};
 use crate::fisher::{fisher_information, FisherAnalysis};
 use crate::objective::{summarise, SimObjective};
 use crate::polish::{polish, Polished};
@@ -51,7 +58,7 @@ pub const POSTERIOR_METRICS: [&str; 5] = [
 
 /// The files a sampled posterior writes into its output folder.
 pub const POSTERIOR_FILES: [&str; 8] = [
-    crate::fingerprint::OBJECTIVE_FILE,
+    OBJECTIVE_FILE,
     "evaluations.csv",
     "search.csv",
     "stages.csv",
@@ -90,9 +97,126 @@ pub enum SampledPosteriorError {
         /// The batch.
         batch: usize,
     },
+    /// The batch evaluator gave rows that do not fit the batch.
+    #[error("batch {batch}: {message}")]
+    Evaluator {
+        /// The batch.
+        batch: usize,
+        /// What went wrong.
+        message: String,
+    },
+    /// The output folder holds the evaluations of another objective.
+    #[error(transparent)]
+    Fingerprint(#[from] FingerprintError),
+    /// The output folder holds evaluations of an unrecorded objective.
+    #[error(
+        "{}: has an evaluations.csv but no objective.toml; use --fresh to start over or another --out",
+        .0.display()
+    )]
+    Unrecorded(PathBuf),
     /// An output file could not be written.
     #[error("{0}")]
     Write(String),
+}
+
+/// Readies `out_dir` for a sampled posterior of the objective `record` (the text of its
+/// [`crate::fingerprint::ObjectiveRecord`]): with `fresh` the [`POSTERIOR_FILES`] there are
+/// removed; otherwise a folder whose log was made for another objective, or for an unrecorded
+/// one, is refused, so that a rerun resumes only its own evaluations. Removes the temporaries an
+/// interrupted write left (returned) and writes the record.
+pub fn prepare_folder(
+    out_dir: &Path,
+    record: &str,
+    fresh: bool,
+) -> Result<Vec<PathBuf>, SampledPosteriorError> {
+    let fail = |path: &Path, e: std::io::Error| {
+        SampledPosteriorError::Write(format!("{}: {e}", path.display()))
+    };
+    if fresh {
+        for file in POSTERIOR_FILES {
+            let path = out_dir.join(file);
+            if path.exists() {
+                std::fs::remove_file(&path).map_err(|e| fail(&path, e))?;
+            }
+        }
+    } else if !crate::fingerprint::check(out_dir, record)?
+        && out_dir.join("evaluations.csv").exists()
+    {
+        return Err(SampledPosteriorError::Unrecorded(out_dir.to_path_buf()));
+    }
+    let removed = crate::driver::clean_leftovers(out_dir, &POSTERIOR_FILES)
+        .map_err(|e| SampledPosteriorError::Write(e.to_string()))?;
+    std::fs::create_dir_all(out_dir).map_err(|e| fail(out_dir, e))?;
+    write_atomically(&out_dir.join(OBJECTIVE_FILE), record.as_bytes())
+        .map_err(|e| SampledPosteriorError::Write(e.to_string()))?;
+    Ok(removed)
+}
+
+/// One candidate's row of a posterior's evaluation log: the log-likelihood (the log's
+/// `objective` column) and the [`POSTERIOR_METRICS`], in that order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CandidateRow {
+    /// `ln L` of the candidate on the batch's horizon (`−∞` or NaN: zero likelihood).
+    pub log_likelihood: f64,
+    /// The values of [`POSTERIOR_METRICS`].
+    pub metrics: Vec<f64>,
+}
+
+/// Simulates the sampler's batches: one row per candidate, as the evaluation log holds it.
+pub trait BatchEvaluator {
+    /// The rows of `candidates` (SI values in the space's order), in their order, on the
+    /// recordings' first `horizon` seconds (`None`: the whole recordings).
+    fn evaluate(
+        &mut self,
+        horizon: Option<f64>,
+        candidates: &[Vec<f64>],
+    ) -> Result<Vec<CandidateRow>, String>;
+}
+
+/// The local [`BatchEvaluator`]: one batched rollout of the candidates on a [`SimObjective`],
+/// scored with the labelled, phase-balanced likelihood.
+pub struct SimBatches<'a> {
+    objective: &'a mut SimObjective,
+    likelihood: LikelihoodSettings,
+}
+
+impl<'a> SimBatches<'a> {
+    /// Batches simulated on `objective` and scored with `likelihood`.
+    pub fn new(objective: &'a mut SimObjective, likelihood: &LikelihoodSettings) -> Self {
+        Self {
+            objective,
+            likelihood: *likelihood,
+        }
+    }
+}
+
+impl BatchEvaluator for SimBatches<'_> {
+    fn evaluate(
+        &mut self,
+        horizon: Option<f64>,
+        candidates: &[Vec<f64>],
+    ) -> Result<Vec<CandidateRow>, String> {
+        let objective = &mut *self.objective;
+        let (outcomes, likelihood) = match horizon {
+            None => (
+                objective.rollouts(candidates),
+                Likelihood::new(objective.targets(), &self.likelihood),
+            ),
+            Some(h) => {
+                let outcomes = objective
+                    .rollouts_within(h, candidates)
+                    .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
+                let short = objective.targets_within(h).expect("rolled out above");
+                (outcomes, Likelihood::new(short, &self.likelihood))
+            }
+        };
+        let outcomes = outcomes.map_err(|e| e.to_string())?;
+        let horizon_s = horizon.unwrap_or(objective.duration());
+        Ok(outcomes
+            .iter()
+            .map(|outcome| candidate_row(outcome, &likelihood, objective, horizon_s))
+            .collect())
+    }
 }
 
 /// One parameter of the posterior.
@@ -156,6 +280,63 @@ pub fn sample_posterior(
     settings: &SmcSettings,
     likelihood: &LikelihoodSettings,
     out_dir: &Path,
+    on_batch: impl FnMut(usize, usize),
+) -> Result<SampledPosterior, SampledPosteriorError> {
+    let settings_of_likelihood = *likelihood;
+    sample_with(
+        objective,
+        |objective, _, horizon, candidates| {
+            SimBatches::new(objective, &settings_of_likelihood).evaluate(horizon, candidates)
+        },
+        space,
+        settings,
+        likelihood,
+        out_dir,
+        on_batch,
+    )
+}
+
+/// [`sample_posterior`] with the batches simulated by `batches` instead of `objective` (which
+/// still runs the polish and the Fisher information). `batches` must give the rows `objective`
+/// would ([`SimBatches`]): the log, the resume and the draws are then the same.
+pub fn sample_posterior_through(
+    objective: &mut SimObjective,
+    batches: &mut dyn BatchEvaluator,
+    space: &ParamSpace,
+    settings: &SmcSettings,
+    likelihood: &LikelihoodSettings,
+    out_dir: &Path,
+    on_batch: impl FnMut(usize, usize),
+) -> Result<SampledPosterior, SampledPosteriorError> {
+    sample_with(
+        objective,
+        |_, batch, horizon, candidates| {
+            batches
+                .evaluate(horizon, candidates)
+                .map_err(|e| format!("batch {batch}: {e}"))
+        },
+        space,
+        settings,
+        likelihood,
+        out_dir,
+        on_batch,
+    )
+}
+
+/// The sampler with `evaluate(objective, batch, horizon, candidates)` simulating the batches
+/// that are not logged yet.
+fn sample_with(
+    objective: &mut SimObjective,
+    mut evaluate: impl FnMut(
+        &mut SimObjective,
+        usize,
+        Option<f64>,
+        &[Vec<f64>],
+    ) -> Result<Vec<CandidateRow>, String>,
+    space: &ParamSpace,
+    settings: &SmcSettings,
+    likelihood: &LikelihoodSettings,
+    out_dir: &Path,
     mut on_batch: impl FnMut(usize, usize),
 ) -> Result<SampledPosterior, SampledPosteriorError> {
     std::fs::create_dir_all(out_dir)
@@ -177,8 +358,6 @@ pub fn sample_posterior(
     let mut all: Vec<LoggedEvaluation> = Vec::new();
     let mut failure: Option<SampledPosteriorError> = None;
     let duration = objective.duration();
-    // The likelihood's counts of the growing-horizon search's shorter starts, made once each.
-    let mut starts: Vec<(f64, Likelihood)> = Vec::new();
     // The sampler's batches and the refinement of its mode search both simulate; they take turns.
     let shared = RefCell::new(objective);
     // The refinement's polish, run before sampling (not logged: a resumed run repeats it, with
@@ -225,26 +404,24 @@ pub fn sample_posterior(
                     rows.clone()
                 }
                 None => {
-                    let (outcomes, likelihood) = match horizon {
-                        None => (objective.rollouts(&values), likelihood),
-                        Some(h) => {
-                            let outcomes = objective
-                                .rollouts_within(h, &values)
-                                .ok_or_else(|| format!("no recording has a frame before {h} s"))?;
-                            if !starts.iter().any(|(s, _)| *s == h) {
-                                let short = objective.targets_within(h).expect("rolled out above");
-                                starts.push((h, Likelihood::new(short, &settings_of_likelihood)));
-                            }
-                            let counts =
-                                starts.iter().find(|(s, _)| *s == h).expect("made above").1;
-                            (outcomes, counts)
-                        }
-                    };
-                    let outcomes = outcomes.map_err(|e| e.to_string())?;
-                    let mut rows = logged_rows(batch, &values, &outcomes, &likelihood, objective);
-                    for row in &mut rows {
-                        row.metrics.push(horizon.unwrap_or(duration));
+                    let evaluated = evaluate(objective, batch, horizon, &values)?;
+                    let horizon_s = horizon.unwrap_or(duration);
+                    if let Err(message) = check_rows(&evaluated, values.len(), horizon_s) {
+                        failure = Some(SampledPosteriorError::Evaluator { batch, message });
+                        return Err("the batch's rows do not fit it".into());
                     }
+                    let rows: Vec<LoggedEvaluation> = evaluated
+                        .into_iter()
+                        .zip(&values)
+                        .enumerate()
+                        .map(|(candidate, (row, params))| LoggedEvaluation {
+                            batch,
+                            candidate,
+                            params: params.clone(),
+                            objective: row.log_likelihood,
+                            metrics: row.metrics,
+                        })
+                        .collect();
                     if let Err(e) = log.append(&rows) {
                         failure = Some(e.into());
                         return Err("the log could not be written".into());
@@ -370,35 +547,58 @@ fn polish_with_information(
     Ok((polished, fisher))
 }
 
-/// The log rows of one batch: log-likelihood and metrics of every candidate.
-fn logged_rows(
-    batch: usize,
-    values: &[Vec<f64>],
-    outcomes: &[Vec<RolloutOutcome>],
+/// The row of one candidate from its `outcome` on recordings `horizon_s` long.
+fn candidate_row(
+    outcome: &[RolloutOutcome],
     likelihood: &Likelihood,
     objective: &SimObjective,
-) -> Vec<LoggedEvaluation> {
-    values
+    horizon_s: f64,
+) -> CandidateRow {
+    let summary = summarise(outcome, objective.weights());
+    let n = outcome.len() as f64;
+    let site = outcome
         .iter()
-        .zip(outcomes)
-        .enumerate()
-        .map(|(candidate, (params, outcome))| {
-            let summary = summarise(outcome, objective.weights());
-            let n = outcome.len() as f64;
-            let site = outcome
-                .iter()
-                .map(|o| o.loss.balanced_site_sq())
-                .sum::<f64>()
-                / n;
-            LoggedEvaluation {
-                batch,
-                candidate,
-                params: params.clone(),
-                objective: likelihood.log_likelihood(outcome),
-                metrics: vec![summary.loss, summary.chamfer_m, summary.object_mse_m2, site],
-            }
-        })
-        .collect()
+        .map(|o| o.loss.balanced_site_sq())
+        .sum::<f64>()
+        / n;
+    CandidateRow {
+        log_likelihood: likelihood.log_likelihood(outcome),
+        metrics: vec![
+            summary.loss,
+            summary.chamfer_m,
+            summary.object_mse_m2,
+            site,
+            horizon_s,
+        ],
+    }
+}
+
+/// Whether an evaluator's `rows` fit a batch of `candidates` scored on recordings `horizon_s`
+/// long: one each, every metric present, the horizon that one (the best draw is found by it).
+fn check_rows(rows: &[CandidateRow], candidates: usize, horizon_s: f64) -> Result<(), String> {
+    if rows.len() != candidates {
+        return Err(format!(
+            "{} rows for {candidates} candidates; expected one per candidate",
+            rows.len()
+        ));
+    }
+    for (k, row) in rows.iter().enumerate() {
+        if row.metrics.len() != POSTERIOR_METRICS.len() {
+            return Err(format!(
+                "candidate {k} has {} metrics; expected {} ({})",
+                row.metrics.len(),
+                POSTERIOR_METRICS.len(),
+                POSTERIOR_METRICS.join(", ")
+            ));
+        }
+        let scored = row.metrics[POSTERIOR_METRICS.len() - 1];
+        if scored != horizon_s {
+            return Err(format!(
+                "candidate {k} has horizon_s = {scored}; expected {horizon_s} (the batch's horizon)"
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Median, 90 % interval and box share of each coordinate of `unit_draws`.
@@ -482,4 +682,224 @@ pub fn posterior_table(posterior: &SampledPosterior) -> String {
         ));
     }
     text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cmaes::ModeSearchSettings;
+    use crate::space::ParamSpec;
+    use rlpkg_replay::loss::{LossKind, LossWeights};
+    use rlpkg_replay::{load_scene, Target};
+
+    /// The first 0.05 s of HHHHH on the physical scene's 6 x 7 grid after a 0.1 s rest, fitted
+    /// by the membrane's stiffness (a fraction of a second of CPU per batch).
+    fn small_objective() -> SimObjective {
+        let mut scene = load_scene("physical", Some(0), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        // The disc may slip through the 6 x 7 sheet; these tests are about the batches.
+        scene.health.object_outside = false;
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/deformable-sim-real");
+        let recorded = rlpkg_mocap::Dataset::open(&root)
+            .unwrap()
+            .load("HHHHH")
+            .unwrap();
+        let target = Target::new(&recorded, Some(0.05), false).unwrap();
+        let weights = LossWeights {
+            object: 1.0,
+            package: 1.0,
+            kind: LossKind::Labelled,
+        };
+        SimObjective::from_targets(&scene, vec!["k_tri_e".into()], vec![target], weights).unwrap()
+    }
+
+    fn space() -> ParamSpace {
+        ParamSpace::new(vec![ParamSpec {
+            name: "k_tri_e".into(),
+            lower: 1.0e3,
+            upper: 1.0e5,
+            log: true,
+        }])
+        .unwrap()
+    }
+
+    /// Four particles after a growing-horizon search (0.025 s, then the whole 0.05 s).
+    fn settings() -> SmcSettings {
+        SmcSettings {
+            particles: 4,
+            ess_fraction: 0.5,
+            moves: 1,
+            final_moves: 1,
+            max_stages: 20,
+            seed: 5,
+            mode_search: Some(ModeSearchSettings {
+                population: 4,
+                generations: 1,
+                initial_step: 0.3,
+                reference_scale: 2.0,
+                first_horizon_s: Some(0.025),
+            }),
+            polish_iterations: 0,
+        }
+    }
+
+    /// Simulates each batch on its own objective one candidate at a time, as remote workers
+    /// given one chunk each would; counts the horizons it was asked for.
+    struct OneAtATime {
+        objective: SimObjective,
+        likelihood: LikelihoodSettings,
+        horizons: Vec<Option<f64>>,
+    }
+
+    impl BatchEvaluator for OneAtATime {
+        fn evaluate(
+            &mut self,
+            horizon: Option<f64>,
+            candidates: &[Vec<f64>],
+        ) -> Result<Vec<CandidateRow>, String> {
+            self.horizons.push(horizon);
+            let mut rows = Vec::new();
+            for candidate in candidates {
+                let mut local = SimBatches::new(&mut self.objective, &self.likelihood);
+                rows.extend(local.evaluate(horizon, std::slice::from_ref(candidate))?);
+            }
+            Ok(rows)
+        }
+    }
+
+    #[test]
+    fn batches_through_another_evaluator_give_the_same_files() {
+        let likelihood = LikelihoodSettings::default();
+        let local_dir = tempfile::tempdir().unwrap();
+        let local = sample_posterior(
+            &mut small_objective(),
+            &space(),
+            &settings(),
+            &likelihood,
+            local_dir.path(),
+            |_, _| {},
+        )
+        .unwrap();
+        let mut remote = OneAtATime {
+            objective: small_objective(),
+            likelihood,
+            horizons: Vec::new(),
+        };
+        let through_dir = tempfile::tempdir().unwrap();
+        let through = sample_posterior_through(
+            &mut small_objective(),
+            &mut remote,
+            &space(),
+            &settings(),
+            &likelihood,
+            through_dir.path(),
+            |_, _| {},
+        )
+        .unwrap();
+        assert_eq!(
+            (&local.draws, local.evaluations),
+            (&through.draws, through.evaluations)
+        );
+        // The search's short start went through the evaluator too.
+        assert_eq!(remote.horizons[0], Some(0.025));
+        assert!(remote.horizons[1..].iter().all(Option::is_none));
+        for file in POSTERIOR_FILES.iter().filter(|f| **f != OBJECTIVE_FILE) {
+            let read = |dir: &Path| std::fs::read(dir.join(file)).unwrap();
+            assert_eq!(read(local_dir.path()), read(through_dir.path()), "{file}");
+        }
+        let log = std::fs::read_to_string(local_dir.path().join("evaluations.csv")).unwrap();
+        assert_eq!(log.lines().count(), 1 + local.evaluations, "{log}");
+        assert!(log.contains(",0.025\n") && log.contains(",0.05\n"), "{log}");
+    }
+
+    /// What an evaluator gets wrong.
+    #[derive(Clone, Copy)]
+    enum Fault {
+        Fails,
+        DropsARow,
+        WrongHorizon,
+    }
+
+    impl BatchEvaluator for Fault {
+        fn evaluate(
+            &mut self,
+            horizon: Option<f64>,
+            candidates: &[Vec<f64>],
+        ) -> Result<Vec<CandidateRow>, String> {
+            let row = |horizon_s: f64| CandidateRow {
+                log_likelihood: 0.0,
+                metrics: vec![0.0, 0.0, 0.0, 0.0, horizon_s],
+            };
+            match self {
+                Fault::Fails => Err("the workers are gone".into()),
+                Fault::DropsARow => Ok(vec![row(horizon.unwrap()); candidates.len() - 1]),
+                Fault::WrongHorizon => Ok(vec![row(0.05); candidates.len()]),
+            }
+        }
+    }
+
+    #[test]
+    fn an_evaluator_that_fails_or_gives_rows_that_do_not_fit_is_an_error_naming_the_batch() {
+        let likelihood = LikelihoodSettings::default();
+        let dir = tempfile::tempdir().unwrap();
+        let run = |mut fault: Fault| {
+            sample_posterior_through(
+                &mut small_objective(),
+                &mut fault,
+                &space(),
+                &settings(),
+                &likelihood,
+                dir.path(),
+                |_, _| {},
+            )
+            .unwrap_err()
+            .to_string()
+        };
+        assert_eq!(
+            run(Fault::DropsARow),
+            "batch 0: 3 rows for 4 candidates; expected one per candidate"
+        );
+        // The search's first batch scores the first 0.025 s.
+        assert_eq!(
+            run(Fault::WrongHorizon),
+            "batch 0: candidate 0 has horizon_s = 0.05; expected 0.025 (the batch's horizon)"
+        );
+        // Nothing of the batch was logged.
+        let log = std::fs::read_to_string(dir.path().join("evaluations.csv")).unwrap();
+        assert_eq!(log.lines().count(), 1, "{log}");
+        assert_eq!(
+            run(Fault::Fails),
+            "likelihood: batch 0: the workers are gone",
+            "the evaluator's own error"
+        );
+    }
+
+    #[test]
+    fn a_folder_resumes_only_its_own_objective() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("posterior");
+        assert!(prepare_folder(&out, "a = 1\n", false).unwrap().is_empty());
+        std::fs::write(out.join("evaluations.csv"), "batch\n").unwrap();
+        let leftover = out.join(".samples.csv.a1B2c3");
+        std::fs::write(&leftover, "").unwrap();
+        assert_eq!(prepare_folder(&out, "a = 1\n", false).unwrap(), [leftover]);
+        let other = prepare_folder(&out, "a = 2\n", false)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            other.contains("line 1") && other.contains("`a = 1`"),
+            "{other}"
+        );
+        std::fs::remove_file(out.join(OBJECTIVE_FILE)).unwrap();
+        let unrecorded = prepare_folder(&out, "a = 2\n", false)
+            .unwrap_err()
+            .to_string();
+        assert!(unrecorded.contains("no objective.toml"), "{unrecorded}");
+        prepare_folder(&out, "a = 2\n", true).unwrap();
+        assert!(!out.join("evaluations.csv").exists());
+        assert_eq!(
+            std::fs::read_to_string(out.join(OBJECTIVE_FILE)).unwrap(),
+            "a = 2\n"
+        );
+    }
 }

@@ -374,6 +374,7 @@ fn rust_step_seconds(
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<VecEnvCore>()?;
     m.add_class::<calibration::CalibrationObjective>()?;
+    m.add_function(wrap_pyfunction!(calibration::sample_posterior, m)?)?;
     m.add_class::<profile::ProfileReference>()?;
     m.add_function(wrap_pyfunction!(rust_rollout_digest, m)?)?;
     m.add_function(wrap_pyfunction!(rust_step_seconds, m)?)?;

@@ -67,3 +67,82 @@ def test_objective_overrides_and_bad_input(in_repository):
         Objective(TINY, max_seconds=-1.0)
     with pytest.raises(ValueError, match="nothere.toml"):
         Objective("nothere.toml")
+
+
+# The files a sampled posterior writes, besides the command's calibrated.toml, corner.png and summary.json.
+POSTERIOR_FILES = [
+    "objective.toml", "evaluations.csv", "search.csv", "stages.csv", "samples.csv", "posterior.toml", "best.toml",
+    "fisher.toml",
+]
+
+
+def logged_batches(out_dir):
+    """The evaluation log's rows by batch."""
+    with open(out_dir / "evaluations.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    batches = {}
+    for row in rows:
+        batches.setdefault(int(row["batch"]), []).append(row)
+    return [batches[b] for b in sorted(batches)]
+
+
+def test_sampled_posterior_equals_the_command(tiny_posterior, tmp_path):
+    from rlpkg.calibration import sample_posterior
+
+    try:
+        binary = find_binary()
+    except FileNotFoundError as e:
+        pytest.fail(str(e))
+    command = tmp_path / "command"
+    done = subprocess.run(
+        [str(binary), "calibrate", str(tiny_posterior), "--out", str(command), "--fresh"], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    summary = sample_posterior(tiny_posterior, out_dir=tmp_path / "python")
+    for name in POSTERIOR_FILES:
+        assert (tmp_path / "python" / name).read_bytes() == (command / name).read_bytes(), name
+    assert summary["out_dir"] == str(tmp_path / "python")
+    assert [p["name"] for p in summary["parameters"]] == ["k_tri_e", "k_tri_d"]
+    batches = logged_batches(command)
+    assert summary["evaluations"] == sum(len(b) for b in batches)
+    # The growing-horizon search's first generation scores the first 0.025 s, the sampler the whole 0.05 s.
+    objective = Objective(tiny_posterior)
+    for batch, horizon in [(batches[0], 0.025), (batches[-1], None)]:
+        assert {row["horizon_s"] for row in batch} == {str(horizon or 0.05)}
+        vectors = [[float(row[name]) for name in objective.names] for row in batch]
+        for row, result in zip(batch, objective.log_likelihoods(vectors, horizon)):
+            assert float(row["objective"]) == result["log_likelihood"], (row, result)
+            for metric in ["loss", "chamfer_m", "object_mse_m2", "site_mse_m2", "horizon_s"]:
+                assert float(row[metric]) == result[metric], (metric, row, result)
+
+
+def test_sampled_posterior_errors_name_the_batch(in_repository, tiny_posterior, tmp_path):
+    from rlpkg.calibration import sample_posterior
+
+    row = {"log_likelihood": 0.0, "loss": 0.0, "chamfer_m": 0.0, "object_mse_m2": 0.0, "site_mse_m2": 0.0}
+
+    def short(config, horizon, candidates):
+        return [{**row, "horizon_s": horizon}] * (len(candidates) - 1)
+
+    with pytest.raises(ValueError, match="batch 0: 3 rows for 4 candidates"):
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "short", map_batches=short)
+
+    def failing(config, horizon, candidates):
+        raise ZeroDivisionError("no workers")
+
+    with pytest.raises(RuntimeError, match="batch 0: map_batches: ZeroDivisionError: no workers") as raised:
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "failing", map_batches=failing)
+    assert isinstance(raised.value.__cause__, ZeroDivisionError)
+
+    def no_site(config, horizon, candidates):
+        return [{k: v for k, v in row.items() if k != "site_mse_m2"}] * len(candidates)
+
+    with pytest.raises(RuntimeError, match="row 0: site_mse_m2"):
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "no-site", map_batches=no_site)
+    with pytest.raises(ValueError, match=r"no \[smc\] table"):
+        sample_posterior(TINY, out_dir=tmp_path / "optimiser")
+    # A folder holding another objective's evaluations is not resumed.
+    other = tmp_path / "short" / "objective.toml"
+    other.write_text(other.read_text().replace("seed = 3", "seed = 4"))
+    with pytest.raises(ValueError, match="objective.toml line"):
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "short")

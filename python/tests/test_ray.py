@@ -141,3 +141,19 @@ def test_tune_calibration_with_optuna_gp_sampler(cluster, tmp_path, monkeypatch)
     assert len({tuple(p.values()) for p in params}) == 6
     expected = Objective(config).evaluate(params)
     assert losses == [e["loss"] for e in expected]
+
+
+def test_sampled_posterior_batches_as_ray_tasks_on_both_nodes(cluster, tiny_posterior, tmp_path):
+    from rlpkg.calibration import RayMap, sample_posterior
+
+    local = sample_posterior(tiny_posterior, out_dir=tmp_path / "local")
+    ray_map = RayMap(chunks=2)
+    remote = sample_posterior(tiny_posterior, out_dir=tmp_path / "ray", map_batches=ray_map)
+    for name in ["evaluations.csv", "samples.csv", "search.csv", "stages.csv", "posterior.toml", "best.toml", "fisher.toml"]:
+        assert (tmp_path / "ray" / name).read_bytes() == (tmp_path / "local" / name).read_bytes(), name
+    assert remote["evaluations"] == local["evaluations"]
+    with open(tmp_path / "ray" / "evaluations.csv") as f:
+        batches = {line.split(",")[0] for line in f.readlines()[1:]}
+    # Every batch went out in two chunks, and the chunks ran on both nodes.
+    assert sum(ray_map.nodes.values()) == 2 * len(batches)
+    assert set(ray_map.nodes) == _node_ids()

@@ -1,6 +1,7 @@
 """Type stubs of ``rlpkg._native``, the Rust core of the package."""
 
 from os import PathLike
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -81,6 +82,14 @@ class CalibrationObjective:
     def trajectories(self) -> list[str]: ...
     def base_values(self) -> list[float]: ...
     def evaluate(self, batch: list[list[float]]) -> list[dict[str, float]]: ...
+    def log_likelihoods(self, batch: list[list[float]], horizon: float | None = None) -> list[dict[str, float]]: ...
+
+def sample_posterior(
+    config: str | PathLike[str],
+    out_dir: str | PathLike[str] | None = None,
+    map_batches: Callable[[str, float | None, list[list[float]]], list[dict[str, float]]] | None = None,
+    fresh: bool = False,
+) -> dict[str, Any]: ...
 
 class ProfileReference:
     """The reference a profile-rate policy drives on a robot: Transport-v0's motion profile along

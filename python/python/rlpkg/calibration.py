@@ -8,16 +8,27 @@
 Each ``evaluate`` simulates the whole batch on every trajectory in one batched rollout (without
 the GIL) and gives the numbers ``rlpkg calibrate`` logs in ``evaluations.csv`` for the same
 parameter vectors.
+
+A configuration with an ``[smc]`` table samples the posterior as ``rlpkg calibrate`` does, with
+its batches of candidates evaluated here or, where one machine is not enough, as Ray tasks:
+
+    from rlpkg.calibration import RayMap, sample_posterior
+    summary = sample_posterior("configs/calibrate/posterior-real-film.toml", out_dir="runs/p",
+                               map_batches=RayMap(chunks=8))
+
+``Objective.log_likelihoods(batch, horizon)`` gives the rows such a sampler logs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections import Counter
 from collections.abc import Mapping, Sequence
 
 from rlpkg import _native
 
-__all__ = ["Objective"]
+__all__ = ["Objective", "RayMap", "sample_posterior"]
 
 
 class Objective:
@@ -81,6 +92,115 @@ class Objective:
         a non-finite loss."""
         return self._core.evaluate([self.vector(p) for p in batch])
 
+    def log_likelihoods(self, batch, horizon: float | None = None) -> list[dict[str, float]]:
+        """The rows a sampled posterior of this configuration (its ``[smc]`` and ``[likelihood]``
+        tables) logs in ``evaluations.csv`` for the parameter vectors (or mappings) of ``batch``
+        on the recordings' first ``horizon`` seconds (``None``: the whole recordings): one
+        ``{"log_likelihood", "loss", "chamfer_m", "object_mse_m2", "site_mse_m2", "horizon_s"}``
+        dict per entry, ``log_likelihood`` being the log's ``objective`` (``-inf`` when a rollout
+        diverged)."""
+        return self._core.log_likelihoods([self.vector(p) for p in batch], horizon)
+
     def __call__(self, params) -> float:
         """The loss of one parameter vector or mapping."""
         return self.evaluate([params])[0]["loss"]
+
+
+def sample_posterior(
+    config: str | os.PathLike,
+    out_dir: str | os.PathLike | None = None,
+    map_batches=None,
+    fresh: bool = False,
+) -> dict:
+    """Samples the posterior of the configuration ``config`` (with an ``[smc]`` table; its relative
+    paths taken from the working folder) as ``rlpkg calibrate`` does, into ``out_dir`` (default: the
+    configuration's ``out_dir``): ``objective.toml``, ``evaluations.csv``, ``search.csv``,
+    ``stages.csv``, ``samples.csv``, ``posterior.toml``, ``best.toml``, ``fisher.toml``, the same
+    bytes as the command writes. A rerun into the folder resumes its log unless ``fresh``;
+    ``rlpkg calibrate <config> --out <out_dir>`` afterwards serves every logged batch again and adds
+    the command's ``calibrated.toml``, ``corner.png`` and ``summary.json``.
+
+    Each batch of candidates is simulated here, without the GIL, unless ``map_batches`` is given:
+    then ``map_batches(config, horizon, candidates)`` returns the rows of
+    ``Objective(config).log_likelihoods(candidates, horizon)`` (e.g. :class:`RayMap`). The polish
+    and the Fisher information are a few sequential rollouts and always run here. An error raised by
+    ``map_batches`` is the cause of the ``RuntimeError`` that names the batch; rows that do not fit
+    the batch are a ``ValueError`` naming it.
+
+    Returns the summary of ``posterior.toml``: ``parameters`` (per parameter ``name``, ``lower_5``,
+    ``median``, ``upper_95``, ``box_share``, ``best``), ``evaluations``, ``stages``,
+    ``log_evidence``, ``best_log_likelihood``, ... and ``out_dir``."""
+    return _native.sample_posterior(
+        os.fspath(config), None if out_dir is None else os.fspath(out_dir), map_batches, fresh
+    )
+
+
+@contextlib.contextmanager
+def _inside(folder: str | None):
+    """Runs the block with ``folder`` (when given) as the working folder."""
+    previous = os.getcwd()
+    if folder is not None:
+        os.chdir(folder)
+    try:
+        yield
+    finally:
+        os.chdir(previous)
+
+
+# One objective per (root, configuration) in each Ray worker process, built by its first chunk.
+_WORKER_OBJECTIVES: dict[tuple[str, str], Objective] = {}
+
+
+def _evaluate_chunk(root: str, config: str, horizon: float | None, candidates):
+    """A Ray task: this node's id and the rows of ``candidates``. The configuration's paths are
+    taken from ``root`` when this node has that folder, else from the working folder (a cluster
+    job's ``working_dir``)."""
+    import ray
+
+    key = (root, config)
+    if key not in _WORKER_OBJECTIVES:
+        with _inside(root if os.path.isdir(root) else None):
+            _WORKER_OBJECTIVES[key] = Objective(config)
+    rows = _WORKER_OBJECTIVES[key].log_likelihoods(candidates, horizon)
+    return ray.get_runtime_context().get_node_id(), rows
+
+
+class RayMap:
+    """``map_batches`` of :func:`sample_posterior` on a Ray cluster (``ray.init`` first): each batch
+    is split into ``chunks`` contiguous chunks, each evaluated as one Ray task whose worker builds
+    and keeps its own :class:`Objective` of the configuration, and the rows are put back in order.
+    A chunk's rows do not depend on the other candidates of its batch, so the files are the same
+    as one machine writes.
+
+    - ``root``: the folder the configuration's relative paths are taken from (default: the working
+      folder now); a node without it takes them from its working folder;
+    - ``options``: ``ray.remote`` options of each task (default ``num_cpus=1`` and the ``"SPREAD"``
+      scheduling strategy).
+
+    ``nodes`` counts the chunks each node (its Ray id) evaluated."""
+
+    def __init__(self, chunks: int, root: str | os.PathLike | None = None, **options):
+        if not isinstance(chunks, int) or chunks < 1:
+            raise ValueError(f"chunks={chunks!r}: expected a whole number >= 1")
+        self.chunks = chunks
+        self.root = os.path.abspath(os.fspath(root) if root is not None else os.getcwd())
+        self.options = {"num_cpus": 1, "scheduling_strategy": "SPREAD", **options}
+        self.nodes: Counter[str] = Counter()
+
+    def __call__(self, config: str, horizon: float | None, candidates) -> list[dict[str, float]]:
+        import ray
+
+        task = ray.remote(_evaluate_chunk).options(**self.options)
+        n = len(candidates)
+        edges = [n * k // self.chunks for k in range(self.chunks + 1)]
+        spans = [(a, b) for a, b in zip(edges, edges[1:]) if b > a]
+        refs = [task.remote(self.root, config, horizon, candidates[a:b]) for a, b in spans]
+        rows = []
+        for k, ((a, b), (node, chunk)) in enumerate(zip(spans, ray.get(refs))):
+            if len(chunk) != b - a:
+                raise ValueError(
+                    f"chunk {k} (candidates {a} to {b - 1}) returned {len(chunk)} rows for {b - a} candidates"
+                )
+            self.nodes[node] += 1
+            rows.extend(chunk)
+        return rows
