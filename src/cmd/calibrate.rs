@@ -250,20 +250,7 @@ fn run_posterior(
 ) -> anyhow::Result<()> {
     use rlpkg_calib::sampled_posterior::{posterior_table, sample_posterior, POSTERIOR_FILES};
     let out_dir = &config.out_dir;
-    let record = ObjectiveRecord {
-        data: &config.data,
-        trajectories: ids,
-        max_seconds: config.sim.max_seconds,
-        seed: smc.seed,
-        initial_points: smc.particles,
-        batch_size: smc.particles,
-        loss: config.loss,
-        param: &config.params,
-        smc: Some(smc),
-        likelihood: Some(config.likelihood),
-        scene,
-    }
-    .to_text()?;
+    let record = ObjectiveRecord::posterior(config, smc, ids, scene).to_text()?;
     if args.fresh {
         remove_outputs(out_dir, &POSTERIOR_FILES)?;
     } else if !fingerprint::check(out_dir, &record).map_err(input_error)?
