@@ -94,6 +94,12 @@ fn check_import(dataset_dir: &Path) {
             .expect("marker_inset_m in meta.toml");
         assert!((inset[0] - (min_x + number(&manifest["package"]["size_x_m"]) / 2.0)).abs() < 1e-9);
         assert!((inset[1] - (number(&manifest["package"]["size_y_m"]) / 2.0 - max_y)).abs() < 1e-9);
+        // The bottom layer's markers, hidden on the conveyor, placed by the layout: 20 on the
+        // conveyor plane (mocap y = 0).
+        let bottom = layout.iter().filter(|s| s["layer"] == "bottom").count();
+        let lower = &trajectory.meta.initial_lower_marker_positions_m;
+        assert_eq!(lower.len(), bottom);
+        assert!(lower.iter().all(|p| p[1].abs() < 1e-9), "{lower:?}");
     }
     let text = fs::read_to_string(dataset_dir.join("manifest.toml")).unwrap();
     assert!(

@@ -445,10 +445,8 @@ mod tests {
         let out = rollout(model, std::slice::from_ref(&target), &[candidate], &mut rec).unwrap();
         assert!(out[0][0].diverged.is_none());
         assert_eq!(rec.markers.len(), target.times.len());
-        let sites = (0..target.initial_markers.len())
-            .map(Some)
-            .collect::<Vec<_>>();
-        let tracks = (0..target.initial_markers.len() as u32).collect::<Vec<_>>();
+        let sites = (0..target.sites().len()).map(Some).collect::<Vec<_>>();
+        let tracks = (0..target.sites().len() as u32).collect::<Vec<_>>();
         Target {
             marker_tracks: vec![tracks; rec.markers.len()],
             marker_sites: vec![sites; rec.markers.len()],

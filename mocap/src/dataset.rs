@@ -389,6 +389,16 @@ pub struct Meta {
         skip_serializing_if = "Option::is_none"
     )]
     pub marker_inset_m: Option<[f64; 2]>,
+    /// Markers of the lower film layer at the start of the recording (m, world frame), where the
+    /// package's marker layout puts them: the surface the package lies on hides them, so the first
+    /// frame cannot give them. A replay embeds them in the lower sheet as marker sites of their own.
+    /// Empty: no marker on the lower layer (the study's dataset).
+    #[serde(
+        default,
+        deserialize_with = "rlpkg_toml_input::list",
+        skip_serializing_if = "Vec::is_empty"
+    )]
+    pub initial_lower_marker_positions_m: Vec<[f64; 3]>,
 }
 
 /// Recorded end-effector (suction tool) motion, one row per frame.
@@ -786,6 +796,12 @@ fn read_meta(path: &Path) -> Result<Meta, DataError> {
             .iter()
             .enumerate()
             .map(|(i, p)| ("initial_marker_positions_m", i, p)),
+    )
+    .chain(
+        meta.initial_lower_marker_positions_m
+            .iter()
+            .enumerate()
+            .map(|(i, p)| ("initial_lower_marker_positions_m", i, p)),
     );
     for (key, index, position) in positions {
         if position

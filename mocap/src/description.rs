@@ -314,6 +314,26 @@ impl PackageDescription {
         self.takes.iter().find(|t| t.id == id)
     }
 
+    /// The bottom layer's marker sites at the start of every take (m, mocap frame): the package
+    /// lies flat on the conveyor (robot z = 0), centred at the robot's origin with its axes along
+    /// the robot's (the manifest's `package.initial_pose`), so a site at (x, y) of the package frame
+    /// is at robot (x, y, 0). Hidden by the conveyor, these cannot be read off the first frame.
+    pub fn bottom_markers_at_start(&self) -> Vec<[f64; 3]> {
+        let MocapFromRobot {
+            rotation: r,
+            origin_m: o,
+        } = self.mocap_from_robot;
+        self.package
+            .markers
+            .iter()
+            .filter(|m| m.layer == Layer::Bottom)
+            .map(|m| {
+                let d = [m.x - o[0], m.y - o[1], -o[2]];
+                std::array::from_fn(|i| r[i][0] * d[0] + r[i][1] * d[1] + r[i][2] * d[2])
+            })
+            .collect()
+    }
+
     /// How far the outermost marker sites lie inside the package's edges at the smallest mocap x
     /// and z (m), for a package lying flat with its axes along the robot's (its initial pose) and
     /// a transform that maps the robot's horizontal axes onto mocap x and z; none otherwise.
@@ -657,6 +677,13 @@ mod tests {
         let inset = d.marker_inset_m().unwrap();
         assert!((inset[0] - 0.8 * 0.0254).abs() < 1e-9 && (inset[1] - 0.8 * 0.0254).abs() < 1e-9);
         assert!((d.take("a30_m1.0_low").unwrap().object_mass_kg - KG_PER_LB).abs() < 1e-5);
+        // The bottom layer's 20 sites on the conveyor (mocap y = robot z = 0), the first at
+        // robot (-5.2 in, -4.2 in): mocap x = -0.13208 - 0.40, z = -(-0.10668 - 0.15).
+        let bottom = d.bottom_markers_at_start();
+        assert_eq!(bottom.len(), 20);
+        assert!(bottom.iter().all(|p| p[1].abs() < 1e-12));
+        let first = bottom[0];
+        assert!((first[0] + 0.53208).abs() < 1e-9 && (first[2] - 0.25668).abs() < 1e-9);
     }
 
     #[test]

@@ -252,6 +252,7 @@ mod tests {
                 initial_suction_cup_position_m: [0.0; 3],
                 initial_marker_positions_m: Vec::new(),
                 marker_inset_m: None,
+                initial_lower_marker_positions_m: Vec::new(),
             },
             tool: ToolTrack {
                 t: t.clone(),

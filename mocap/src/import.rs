@@ -127,6 +127,11 @@ pub struct PackageConfig {
     /// it from the marker layout. Absent: markers on the edges.
     #[serde(deserialize_with = "rlpkg_toml_input::option")]
     pub marker_inset_m: Option<[f64; 2]>,
+    /// Markers of the package's lower layer at the start of every take (m, mocap frame), hidden
+    /// by the surface it lies on; written to every `meta.toml` (replays embed them in the lower
+    /// sheet); `--manifest` sets them from the marker layout. Empty: none.
+    #[serde(deserialize_with = "rlpkg_toml_input::list")]
+    pub lower_marker_positions_m: Vec<[f64; 3]>,
 }
 
 impl Default for PackageConfig {
@@ -137,6 +142,7 @@ impl Default for PackageConfig {
             object_diameter_m: 0.16,
             object_body_mass_kg: 0.2268,
             marker_inset_m: None,
+            lower_marker_positions_m: Vec::new(),
         }
     }
 }
@@ -289,6 +295,17 @@ impl ImportConfig {
                 ));
             }
         }
+        if let Some((i, p)) = self
+            .package
+            .lower_marker_positions_m
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.iter().any(|v| !(v.is_finite() && v.abs() <= 1e3)))
+        {
+            return Err(format!(
+                "package.lower_marker_positions_m[{i}] = {p:?}: expected finite coordinates of magnitude <= 1e3 m"
+            ));
+        }
         if c.tool_to_cup_m
             .iter()
             .any(|v| !v.is_finite() || v.abs() > 1.0)
@@ -321,9 +338,9 @@ impl ImportConfig {
 
     /// Takes from a collection's `manifest.json` the `[takes]` entries of `ids` (split: train,
     /// test, or `excluded` with the failure flag for a failure take; object mass, mass class,
-    /// speed and placement angle) and, unless the config gives it, `package.marker_inset_m` from
-    /// the marker layout. A take the manifest does not list, or that the config's `[takes]` also
-    /// lists, is an error (one source per take).
+    /// speed and placement angle) and, unless the config gives them, `package.marker_inset_m` and
+    /// `package.lower_marker_positions_m` from the marker layout. A take the manifest does not
+    /// list, or that the config's `[takes]` also lists, is an error (one source per take).
     pub fn apply_description(
         &mut self,
         description: &PackageDescription,
@@ -331,6 +348,9 @@ impl ImportConfig {
     ) -> Result<(), String> {
         if self.package.marker_inset_m.is_none() {
             self.package.marker_inset_m = description.marker_inset_m();
+        }
+        if self.package.lower_marker_positions_m.is_empty() {
+            self.package.lower_marker_positions_m = description.bottom_markers_at_start();
         }
         for id in ids {
             let Some(take) = description.take(id) else {
@@ -871,6 +891,7 @@ pub fn convert_with_robot(
         initial_suction_cup_position_m: std::array::from_fn(|i| tool_track.position[0][i] + cup[i]),
         initial_marker_positions_m: initial_markers,
         marker_inset_m: config.package.marker_inset_m,
+        initial_lower_marker_positions_m: config.package.lower_marker_positions_m.clone(),
     };
     let entry = ManifestEntry {
         id: id.to_string(),

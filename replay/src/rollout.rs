@@ -5,17 +5,18 @@
 //! and threads are filled and the result is deterministic (each environment is bit-identical
 //! whatever the batch).
 //!
-//! Simulated points for the loss: the recorded row-0 markers embedded in the upper sheet
-//! (barycentric, nearest triangle at rest), evaluated on the deformed sheet; not the study's 42
-//! nominal grid vertices, which sit up to 1.5 cm off the real markers (§12, item 5). Recorded frame
+//! Simulated points for the loss: the recorded row-0 markers embedded in the upper sheet, and any
+//! lower-layer markers the dataset places in the lower sheet (barycentric, nearest triangle at
+//! rest), evaluated on the deformed sheets; not the study's 42 nominal grid vertices, which sit
+//! up to 1.5 cm off the real markers (§12, item 5). Recorded frame
 //! `k` (trajectory time `t_k`) is compared with the state at the substep nearest to
 //! `rest + t_k` ([`FrameClock`]); a [`Schedule`] can add stops between the frames (pictures).
 
 use std::sync::Arc;
 
 use rlpkg_sim::{
-    DiscState, HealthEvent, Model, NoSealReason, Params, SceneConfig, SealEventKind, Simulator,
-    SurfaceEmbedding,
+    DiscState, HealthEvent, Model, NoSealReason, Params, SceneConfig, SealEventKind, Sheet,
+    Simulator, SurfaceEmbedding,
 };
 
 use crate::error::ReplayError;
@@ -275,7 +276,11 @@ pub fn rollout_scheduled(
     let mut sim = Simulator::new(model.clone(), specs)?;
     // Placement depends on the target only: embed once per target.
     let embeddings: Vec<SurfaceEmbedding> = (0..n_targets)
-        .map(|t| sim.embed(env_of[t][0], &targets[t].initial_markers))
+        .map(|t| {
+            let env = env_of[t][0];
+            sim.embed_in_sheet(env, Sheet::Upper, &targets[t].initial_markers)
+                .chain(sim.embed_in_sheet(env, Sheet::Lower, &targets[t].lower_markers))
+        })
         .collect();
     // Substep of each compared frame, per target.
     let frame_substeps: Vec<Vec<u64>> = targets
@@ -485,6 +490,52 @@ mod tests {
         let out = rollout(&model, std::slice::from_ref(&target), &[candidate], &mut ()).unwrap();
         assert!(out[0][0].diverged.is_none());
         assert_eq!(out[0][0].loss.frames.len(), target.times.len());
+    }
+
+    #[test]
+    fn lower_layer_markers_are_sites_on_the_lower_sheet() {
+        /// The simulated sites of the first compared frame.
+        struct FirstSites(Vec<[f64; 3]>);
+        impl Observer for FirstSites {
+            fn frame(&mut self, observation: &FrameObservation) {
+                if self.0.is_empty() {
+                    self.0 = observation.simulated_points.to_vec();
+                }
+            }
+        }
+        let mut scene = load_scene("reference", Some(1), None).unwrap();
+        scene.cups.rest_time_s = 0.1;
+        scene.health.object_outside = false;
+        let model = Arc::new(Model::new(&scene).unwrap());
+        let mut recording = recorded("HHHHH");
+        let upper = recording.meta.initial_marker_positions_m.clone();
+        // Under each upper marker, the package's thickness lower.
+        let thickness = f64::from(scene.package.thickness_m);
+        recording.meta.initial_lower_marker_positions_m = upper
+            .iter()
+            .map(|p| [p[0], p[1] - thickness, p[2]])
+            .collect();
+        let target = Target::new(&recording, Some(0.02), false).unwrap();
+        assert_eq!(target.sites().len(), 2 * upper.len());
+        let mut first = FirstSites(Vec::new());
+        let candidate = Candidate::of_scene(&scene);
+        rollout(
+            &model,
+            std::slice::from_ref(&target),
+            &[candidate],
+            &mut first,
+        )
+        .unwrap();
+        let (top, bottom) = first.0.split_at(upper.len());
+        assert_eq!(bottom.len(), upper.len());
+        for (t, b) in top.iter().zip(bottom) {
+            // Same place in plan, one sheet below the other.
+            assert!(
+                (t[0] - b[0]).abs() < 2e-3 && (t[2] - b[2]).abs() < 2e-3,
+                "{t:?} {b:?}"
+            );
+            assert!(t[1] - b[1] > 0.5 * thickness, "{t:?} above {b:?}");
+        }
     }
 
     #[test]

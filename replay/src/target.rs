@@ -52,6 +52,9 @@ pub struct Target {
     pub tool: Arc<ToolTrajectory>,
     /// Row-0 markers, embedded in the upper sheet for the loss.
     pub initial_markers: Vec<[f32; 3]>,
+    /// The lower layer's markers at the start (the dataset's `initial_lower_marker_positions_m`),
+    /// embedded in the lower sheet: marker sites after `initial_markers`' ([`Target::sites`]).
+    pub lower_markers: Vec<[f32; 3]>,
     /// Trajectory time of each compared frame (s).
     pub times: Vec<f64>,
     /// Markers seen in each compared frame.
@@ -59,7 +62,7 @@ pub struct Target {
     /// The track (physical marker id) of each marker of each compared frame, parallel to `markers`
     /// ([`rlpkg_mocap::tracking`]); one empty list per frame until [`Target::track`].
     pub marker_tracks: Vec<Vec<u32>>,
-    /// The simulated site (index into `initial_markers`) of each marker of each compared frame,
+    /// The simulated site (index into [`Target::sites`]) of each marker of each compared frame,
     /// parallel to `markers`: `None` until [`Target::tie_sites`], and for a marker whose track was
     /// not tied (first seen after the first frame, or beyond [`SITE_GATE_M`] of every site).
     pub marker_sites: Vec<Vec<Option<usize>>>,
@@ -139,6 +142,11 @@ impl Target {
             object_mass_kg: meta.object_total_mass_kg as f32,
             tool: Arc::new(tool),
             initial_markers,
+            lower_markers: meta
+                .initial_lower_marker_positions_m
+                .iter()
+                .map(f32s)
+                .collect(),
             times: (0..frames).map(|k| trajectory.markers.t(k)).collect(),
             markers,
             marker_tracks: vec![Vec::new(); frames],
@@ -149,12 +157,23 @@ impl Target {
         })
     }
 
+    /// The marker sites at the start (world frame): the upper layer's row-0 markers, then the
+    /// lower layer's. Simulated sites come in this order.
+    pub fn sites(&self) -> Vec<[f32; 3]> {
+        self.initial_markers
+            .iter()
+            .chain(&self.lower_markers)
+            .copied()
+            .collect()
+    }
+
     /// Ties the recording's tracks to simulated sites, each track at the first frame it is seen:
     /// the optimal one-to-one assignment (Hungarian) between that frame's new tracks and the sites
     /// no visible tied track holds, on `sites[k]` (the simulated sites at compared frame `k`, e.g.
-    /// of the scene's own parameters), within [`SITE_GATE_M`]. The sites are the package's row-0
-    /// markers, which the recording's trimmed frames see displaced by the package's sag, so a tie
-    /// is made where both are at the same time. A site that two tracks would show in one frame is
+    /// of the scene's own parameters), within [`SITE_GATE_M`]. The sites ([`Target::sites`]) are
+    /// the package's row-0 markers, which the recording's trimmed frames see displaced by the
+    /// package's sag, and the lower layer's markers, first seen once the package is lifted, so a
+    /// tie is made where both are at the same time. A site that two tracks would show in one frame is
     /// left unknown there. Returns the tracks tied.
     pub fn tie_sites(&mut self, sites: &[Vec<[f64; 3]>]) -> usize {
         use std::collections::HashMap;

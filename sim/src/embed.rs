@@ -1,10 +1,19 @@
-//! Surface-point embedding: arbitrary points (e.g. recorded marker positions at t0) attached to the
-//! upper sheet by nearest triangle and barycentric coordinates at rest, then evaluated on the
-//! deformed sheet of any environment. Used for the calibration loss and the simulate CSVs.
+//! Surface-point embedding: arbitrary points (e.g. recorded marker positions at t0) attached to one
+//! sheet of the package by nearest triangle and barycentric coordinates at rest, then evaluated on
+//! the deformed sheet of any environment. Used for the calibration loss and the simulate CSVs.
 
 use crate::model::Model;
 
-/// One embedded point: a triangle of the upper sheet and barycentric weights of the closest point.
+/// The package's two film layers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sheet {
+    /// The layer the cups hold.
+    Upper,
+    /// The layer facing away from the cups (the one a package lies on).
+    Lower,
+}
+
+/// One embedded point: a triangle of a sheet and barycentric weights of the closest point.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EmbeddedPoint {
     /// Particle indices of the triangle.
@@ -64,11 +73,15 @@ fn closest_barycentric(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f
 }
 
 impl Model {
-    /// Embeds points given relative to the package origin into the upper sheet at rest (nearest
+    /// Embeds points given relative to the package origin into `sheet` at rest (nearest
     /// triangle; the first one wins ties).
-    pub fn embed_upper_sheet(&self, points: &[[f32; 3]]) -> SurfaceEmbedding {
+    pub fn embed_in_sheet(&self, sheet: Sheet, points: &[[f32; 3]]) -> SurfaceEmbedding {
         let rest = |i: u32| self.rest_offsets[i as usize].map(|c| c as f64);
-        let tris = &self.package_triangles[self.upper_sheet_triangles.clone()];
+        let range = match sheet {
+            Sheet::Upper => self.upper_sheet_triangles.clone(),
+            Sheet::Lower => self.lower_sheet_triangles.clone(),
+        };
+        let tris = &self.package_triangles[range];
         let points = points
             .iter()
             .map(|p| {
@@ -105,6 +118,12 @@ impl EmbeddedPoint {
 }
 
 impl SurfaceEmbedding {
+    /// This set's points followed by `other`'s.
+    pub fn chain(mut self, other: SurfaceEmbedding) -> Self {
+        self.points.extend(other.points);
+        self
+    }
+
     /// The embedded points on a deformed configuration (`positions` of every particle).
     pub fn evaluate(&self, positions: &[[f32; 3]]) -> Vec<[f32; 3]> {
         self.points
@@ -127,7 +146,7 @@ mod tests {
         let v = m.upper_sheet_particle(3, 4);
         let interior = [0.031, m.rest_offsets[v][1] + 0.002, 0.047];
         let outside = [-0.05, 0.0, 0.1];
-        let e = m.embed_upper_sheet(&[m.rest_offsets[v], interior, outside]);
+        let e = m.embed_in_sheet(Sheet::Upper, &[m.rest_offsets[v], interior, outside]);
         let at_rest = e.evaluate(&m.rest_offsets);
         for k in 0..3 {
             assert!((at_rest[0][k] - m.rest_offsets[v][k]).abs() < 1e-6);
@@ -144,5 +163,34 @@ mod tests {
             .collect();
         let moved = e.evaluate(&shifted);
         assert!((moved[1][1] - at_rest[1][1] - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_point_embeds_in_the_sheet_asked_for() {
+        let mut c = SceneConfig::preset("reference").unwrap();
+        c.package.grid = [11, 13];
+        let m = Model::new(&c).unwrap();
+        let upper = m.rest_offsets[m.upper_sheet_particle(3, 4)];
+        // The same point in plan, half-way between the layers: each sheet takes its own triangle.
+        let lower_y = m.rest_offsets[3 * m.grid[1] + 4][1];
+        let between = [upper[0], 0.5 * (upper[1] + lower_y), upper[2]];
+        let on_upper = m
+            .embed_in_sheet(Sheet::Upper, &[between])
+            .evaluate(&m.rest_offsets)[0];
+        let on_lower = m
+            .embed_in_sheet(Sheet::Lower, &[between])
+            .evaluate(&m.rest_offsets)[0];
+        assert!((on_upper[1] - upper[1]).abs() < 1e-6, "{on_upper:?}");
+        assert!((on_lower[1] - lower_y).abs() < 1e-6, "{on_lower:?}");
+        let lower = m.embed_in_sheet(Sheet::Lower, &[between]);
+        assert!(lower.points[0]
+            .triangle
+            .iter()
+            .all(|&i| (i as usize) < m.layer_size));
+        let both = m
+            .embed_in_sheet(Sheet::Upper, &[between])
+            .chain(lower)
+            .evaluate(&m.rest_offsets);
+        assert_eq!(both, vec![on_upper, on_lower]);
     }
 }

@@ -110,7 +110,7 @@ pub mod tool;
 pub mod trajectory;
 
 pub use config::{DriveMode, InertiaModel, Params, SceneConfig, SealConfig, Solver, ToolLimits};
-pub use embed::{EmbeddedPoint, SurfaceEmbedding};
+pub use embed::{EmbeddedPoint, Sheet, SurfaceEmbedding};
 pub use episode::{
     CupLoad, DiscState, EnvObservation, EpisodeSpec, HealthEvent, HealthReason, NoSealReason,
     Placement, SealEvent, SealEventKind,

@@ -97,8 +97,10 @@ pub struct Model {
     pub rest_offsets: Vec<[f32; 3]>,
     /// Package triangles: both layers, then the perimeter seam band.
     pub package_triangles: Vec<Triangle>,
-    /// Index range of the upper-sheet triangles within `package_triangles`.
+    /// Index range of the upper-sheet (cup side) triangles within `package_triangles`.
     pub upper_sheet_triangles: std::ops::Range<usize>,
+    /// Index range of the lower-sheet triangles within `package_triangles`.
+    pub lower_sheet_triangles: std::ops::Range<usize>,
     /// Cup shell triangles.
     pub cup_triangles: Vec<Triangle>,
     /// Interior bending edges of the package (layers and seam band; boundary edges are dropped,
@@ -298,6 +300,7 @@ impl Model {
         let upper_start = package_triangles.len();
         package_triangles.extend(make_triangles(&layer_tris[1], &pos));
         let upper_sheet_triangles = upper_start..package_triangles.len();
+        let lower_sheet_triangles = 0..upper_start;
         let mut package_edges = bending_edges(&layer_tris[0], &pos);
         package_edges.extend(bending_edges(&layer_tris[1], &pos));
         for strip in &strips {
@@ -371,6 +374,7 @@ impl Model {
             rest_offsets: pos.iter().map(|q| q.map(|x| x as f32)).collect(),
             package_triangles,
             upper_sheet_triangles,
+            lower_sheet_triangles,
             cup_triangles,
             package_edges,
             cup_edges,

@@ -50,7 +50,7 @@ fn write_plot_sized(
 /// Fig. 10: mean distance from each marker site to the nearest recorded marker, over the package
 /// (sites at their row-0 positions, top view x-z), colour from green (0) to red (max).
 pub fn write_marker_error_plot(path: &Path, target: &Target, errors: &[f64]) -> anyhow::Result<()> {
-    let sites = &target.initial_markers;
+    let sites = &target.sites();
     let finite_max = errors
         .iter()
         .copied()
@@ -403,6 +403,7 @@ mod tests {
                 [0.0, 0.0, 0.0, 1.0],
             )),
             initial_markers: sites,
+            lower_markers: Vec::new(),
             times: vec![0.0, 0.5],
             markers: vec![vec![[0.0, 0.25, 0.0]]; 2],
             marker_tracks: vec![vec![0]; 2],

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use crate::config::ToolLimits;
-use crate::embed::SurfaceEmbedding;
+use crate::embed::{Sheet, SurfaceEmbedding};
 use crate::episode::{CupLoad, DiscState, EnvObservation, EpisodeSpec, HealthEvent, SealEvent};
 use crate::error::SimError;
 use crate::math::get3;
@@ -225,12 +225,22 @@ impl Simulator {
     /// Embeds world points of environment `env` (e.g. its markers at t0) into the upper sheet at
     /// rest; the result can be evaluated on any environment built with the same placement.
     pub fn embed(&self, env: usize, world_points: &[[f32; 3]]) -> SurfaceEmbedding {
+        self.embed_in_sheet(env, Sheet::Upper, world_points)
+    }
+
+    /// [`Simulator::embed`] into either sheet.
+    pub fn embed_in_sheet(
+        &self,
+        env: usize,
+        sheet: Sheet,
+        world_points: &[[f32; 3]],
+    ) -> SurfaceEmbedding {
         let o = self.specs[env].placement.package_origin;
         let rel: Vec<[f32; 3]> = world_points
             .iter()
             .map(|p| [p[0] - o[0], p[1] - o[1], p[2] - o[2]])
             .collect();
-        self.model.embed_upper_sheet(&rel)
+        self.model.embed_in_sheet(sheet, &rel)
     }
 
     /// Current world positions of embedded surface points in environment `env`.

@@ -470,7 +470,7 @@ impl Pictures {
             stills: targets.iter().map(|_| Vec::new()).collect(),
             site_errors: targets
                 .iter()
-                .map(|t| SiteErrors::new(t.initial_markers.len()))
+                .map(|t| SiteErrors::new(t.sites().len()))
                 .collect(),
             markers: targets.iter().map(|t| t.markers.clone()).collect(),
         }

@@ -213,7 +213,7 @@ impl<'a> Recorder<'a> {
             pictures: None,
             gif,
             progress,
-            outcome: Outcome::new(replay.target.initial_markers.len()),
+            outcome: Outcome::new(replay.target.sites().len()),
             error: None,
         }
     }
