@@ -50,6 +50,21 @@ mod tasks;
 use clap::parser::ValueSource;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
+/// glibc's malloc gives blocks of a few megabytes (a PPO minibatch's activations and gradients,
+/// one fresh tensor per op) back to the kernel when they are freed, so the next op faults the same
+/// pages in again: with its default thresholds `rlpkg bench ppo` spends most of a minibatch update
+/// in page faults and zeroing pages (docs/ppo.md). Blocks up to glibc's largest mmap threshold
+/// (32 MiB on 64-bit) are served from the heap instead, and up to 1 GiB of free heap is kept for
+/// reuse rather than trimmed.
+fn keep_freed_memory_in_the_heap() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets allocator parameters; called before any other thread exists.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+    }
+}
+
 #[derive(Parser)]
 #[command(name = "rlpkg", version, about, long_about = None)]
 struct Cli {
@@ -104,6 +119,7 @@ fn negative_numbers_as_values(command: clap::Command) -> clap::Command {
 }
 
 fn main() {
+    keep_freed_memory_in_the_heap();
     let matches = match negative_numbers_as_values(Cli::command()).try_get_matches() {
         Ok(matches) => matches,
         Err(err) => {
