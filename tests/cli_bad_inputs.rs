@@ -458,6 +458,26 @@ fn cases() -> Vec<Case> {
             expected: &["--burn-in", "1000000000000", "0..=1000000"],
         },
         Case {
+            name: "a posterior threshold above every loss",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                std::fs::create_dir(dir.join("out")).unwrap();
+                std::fs::write(
+                    dir.join("out/evaluations.csv"),
+                    "batch,candidate,k_tri_e,objective,loss,chamfer_m,object_mse_m2\n\
+                     0,0,5e4,-2.995732273553991,0.05,0.1,0.001\n\
+                     0,1,5e5,-2.5257286443082556,0.08,0.1,0.001\n",
+                )
+                .unwrap();
+                args(&["posterior", "calibrate.toml", "--epsilon-loss", "1e19"])
+            },
+            expected: &[
+                "--epsilon-loss 1e19",
+                "out/evaluations.csv",
+                "the posterior would be the prior's box",
+            ],
+        },
+        Case {
             name: "a posterior config given to the surrogate posterior",
             setup: |_| {
                 let config = repo().join("configs/calibrate/posterior-real-film.toml");

@@ -162,10 +162,11 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
         );
         evaluations.extend(replayed);
     }
+    check_threshold_below_worst(&args, &evaluations, &log_path)?;
     let result = posterior::infer(&space, &evaluations, &settings).map_err(|e| match e {
         // A threshold the log cannot meet is the option's: name it first.
         PosteriorError::Setting(_) if args.epsilon_loss.is_some() => input_error(format!(
-            "--epsilon-loss {}: {}: {e}",
+            "--epsilon-loss {:?}: {}: {e}",
             args.epsilon_loss.unwrap_or_default(),
             log_path.display()
         )),
@@ -194,6 +195,32 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
     }
     staging.place(&[SAMPLES_FILE, "profiles.csv", SUMMARY_FILE])?;
     print_table(&result, &log_path, &out);
+    Ok(())
+}
+
+/// An `--epsilon-loss` at or above every finite loss of the log keeps every evaluation: the
+/// posterior would be the prior's box, said as if it were inferred.
+fn check_threshold_below_worst(
+    args: &PosteriorArgs,
+    evaluations: &[posterior::Evaluation],
+    log_path: &Path,
+) -> anyhow::Result<()> {
+    let Some(loss) = args.epsilon_loss else {
+        return Ok(());
+    };
+    let worst = evaluations
+        .iter()
+        .map(|e| e.loss)
+        .filter(|l| l.is_finite() && *l > 0.0)
+        .fold(f64::NAN, f64::max);
+    if worst.is_finite() && loss >= worst {
+        return Err(input_error(format!(
+            "--epsilon-loss {loss:?}: {}: every evaluation is within it (the worst finite loss \
+             is {worst:.6e}), so the posterior would be the prior's box; expected a loss below \
+             {worst:.6e}",
+            log_path.display()
+        )));
+    }
     Ok(())
 }
 
