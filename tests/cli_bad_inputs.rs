@@ -1099,6 +1099,45 @@ fn cases() -> Vec<Case> {
             expected: &["--max-vertices", "1000000000000", "2..=1000"],
         },
         Case {
+            name: "scene written over its base scene",
+            setup: |dir| {
+                std::fs::copy(
+                    repo().join("configs/scenes/calibrated-coarse-soft-film.toml"),
+                    dir.join("base.toml"),
+                )
+                .unwrap();
+                let manifest = repo().join("data/packages-v1/manifest.json");
+                args(&[
+                    "scene",
+                    "from-manifest",
+                    manifest.to_str().unwrap(),
+                    "--base",
+                    "base.toml",
+                    "--out",
+                    "./base.toml",
+                ])
+            },
+            expected: &["--out ./base.toml", "the base scene (--base)"],
+        },
+        Case {
+            name: "scene written over its manifest",
+            setup: |dir| {
+                std::fs::copy(
+                    repo().join("data/packages-v1/manifest.json"),
+                    dir.join("manifest.json"),
+                )
+                .unwrap();
+                args(&[
+                    "scene",
+                    "from-manifest",
+                    "manifest.json",
+                    "--out",
+                    "manifest.json",
+                ])
+            },
+            expected: &["--out manifest.json", "the manifest"],
+        },
+        Case {
             name: "seal fit on a dataset without a failure take",
             setup: |dir| {
                 seal_config(dir);

@@ -628,7 +628,7 @@ def output_cases() -> list:
         ("bench sim --json", ["bench", "sim", "--grid", "6x7", "--envs", "1", "--seconds", "0.2",
                               "--workload", "command", "--json"], None),
         ("bench ppo", ["bench", "ppo", "--env-steps", "100", "--minibatches", "1", "--minibatch",
-                       "64", "--backend", "ndarray"], None),
+                       "64", "--backend", "ndarray", "--json"], None),
         ("simulate", ["simulate", str(TAKE), *quick, "--out", "out"], with_quick),
         ("scene", MANIFEST_SCENE, with_manifest),
         ("train", ["train", "tiny.toml"], with_tiny),

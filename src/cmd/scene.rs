@@ -52,6 +52,15 @@ pub fn run(command: SceneCommand) -> anyhow::Result<()> {
 }
 
 fn from_manifest(args: FromManifestArgs) -> anyhow::Result<()> {
+    // The scene written must replace neither file it is built from.
+    crate::files::check_not_input(
+        "--out",
+        &args.out,
+        &[
+            crate::files::Input::File(&args.manifest, "the manifest"),
+            crate::files::Input::File(&args.base, "the base scene (--base)"),
+        ],
+    )?;
     if args.out.is_dir() {
         return Err(input_error(format!(
             "{}: is a folder; expected the path of the scene TOML to write (--out)",
