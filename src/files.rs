@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use rlpkg_files::lock::FolderLock;
 
-use crate::error::input_error;
+use crate::error::{input_error, output_error};
 
 /// Writes `bytes` to `path` atomically (see [`rlpkg_files::write_atomic`]); the error names the
 /// file.
@@ -103,6 +103,85 @@ pub fn check_not_input(option: &str, path: &Path, inputs: &[Input]) -> anyhow::R
     Ok(())
 }
 
+/// A hidden folder inside a command's output folder that its final files are written into and
+/// then moved into place together ([`Staging::place`]): a signal, a full disk or an error before
+/// then leaves the output folder as it was (the staging folder is removed when dropped). One that
+/// a command killed outright left behind is removed by the next ([`remove_staging_leftovers`]).
+pub struct Staging {
+    dir: tempfile::TempDir,
+    out: PathBuf,
+}
+
+impl Staging {
+    /// A new staging folder `<out>/<prefix>XXXXXX`; `out` must exist.
+    pub fn new(out: &Path, prefix: &str) -> anyhow::Result<Self> {
+        let dir = tempfile::Builder::new()
+            .prefix(prefix)
+            .tempdir_in(out)
+            .map_err(|e| {
+                output_error(
+                    anyhow::Error::new(e)
+                        .context(format!("{}: cannot stage the output files", out.display())),
+                )
+            })?;
+        Ok(Self {
+            dir,
+            out: out.to_path_buf(),
+        })
+    }
+
+    /// Where the output file `name` is written before it is moved into place.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+
+    /// Moves the staged files `names` into the output folder in this order (the file that marks
+    /// a complete output last); a name that was not staged is skipped. A symbolic link or a FIFO
+    /// the user placed where an output goes is written through (or refused) as any output is.
+    pub fn place(self, names: &[&str]) -> anyhow::Result<()> {
+        for name in names {
+            let (from, to) = (self.path(name), self.out.join(name));
+            if !from.exists() {
+                continue;
+            }
+            let moved = if std::fs::symlink_metadata(&to).is_ok_and(|m| !m.is_file()) {
+                std::fs::read(&from)
+                    .map_err(anyhow::Error::new)
+                    .and_then(|bytes| write_atomic(&to, &bytes))
+            } else {
+                std::fs::rename(&from, &to).map_err(anyhow::Error::new)
+            };
+            moved.map_err(|e| {
+                output_error(e.context(format!("{}: cannot move the output here", to.display())))
+            })?;
+        }
+        Ok(())
+    }
+}
+
+/// Removes the staging folders `<out>/<prefix>*` that a command killed outright left behind
+/// (only the command holding the folder's lock may); returns what it removed.
+pub fn remove_staging_leftovers(out: &Path, prefix: &str) -> anyhow::Result<Vec<PathBuf>> {
+    let mut removed = Vec::new();
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return Ok(removed);
+    };
+    for entry in entries.flatten() {
+        let staged = entry.file_name().to_string_lossy().starts_with(prefix)
+            && entry.file_type().is_ok_and(|t| t.is_dir());
+        if staged {
+            std::fs::remove_dir_all(entry.path()).map_err(|err| {
+                input_error(format!(
+                    "{}: cannot remove this leftover staging folder: {err}",
+                    entry.path().display()
+                ))
+            })?;
+            removed.push(entry.path());
+        }
+    }
+    Ok(removed)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -134,6 +213,36 @@ mod tests {
             assert!(message.starts_with("--write-params "), "{message}");
             assert!(message.contains(words), "{message}");
         }
+    }
+
+    #[test]
+    fn staged_files_reach_the_folder_only_when_placed() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        std::fs::write(out.join("a.toml"), "earlier").unwrap();
+        // Dropped before it is placed: the folder is as it was.
+        let staging = Staging::new(out, ".stage-").unwrap();
+        std::fs::write(staging.path("a.toml"), "new").unwrap();
+        drop(staging);
+        assert_eq!(
+            std::fs::read_to_string(out.join("a.toml")).unwrap(),
+            "earlier"
+        );
+        assert_eq!(std::fs::read_dir(out).unwrap().count(), 1);
+        // Placed: the staged files replace the folder's, a name not staged is skipped.
+        let staging = Staging::new(out, ".stage-").unwrap();
+        std::fs::write(staging.path("a.toml"), "new").unwrap();
+        std::fs::write(staging.path("b.json"), "{}").unwrap();
+        staging.place(&["a.toml", "missing.csv", "b.json"]).unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("a.toml")).unwrap(), "new");
+        assert!(out.join("b.json").exists() && !out.join("missing.csv").exists());
+        assert_eq!(std::fs::read_dir(out).unwrap().count(), 2);
+        // What a killed command left behind goes; other hidden folders stay.
+        std::fs::create_dir_all(out.join(".stage-Ab12/x")).unwrap();
+        std::fs::create_dir(out.join(".other")).unwrap();
+        let removed = remove_staging_leftovers(out, ".stage-").unwrap();
+        assert_eq!(removed, vec![out.join(".stage-Ab12")]);
+        assert!(out.join(".other").exists());
     }
 
     #[test]

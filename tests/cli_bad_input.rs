@@ -353,6 +353,26 @@ fn cases() -> Vec<Case> {
             words: &["interrupted"],
             signal: Some(("TERM", Duration::from_millis(1500))),
         },
+        Case {
+            name: "SIGTERM during a replay into a new folder",
+            setup: |dir| {
+                slow_scene(dir);
+                simulate_shipped_whole("quick.toml")
+            },
+            code: 130,
+            words: &["interrupted"],
+            signal: Some(("TERM", Duration::from_millis(1500))),
+        },
+        Case {
+            name: "SIGHUP during a replay into a new folder",
+            setup: |dir| {
+                slow_scene(dir);
+                simulate_shipped_whole("quick.toml")
+            },
+            code: 130,
+            words: &["interrupted"],
+            signal: Some(("HUP", Duration::from_millis(1500))),
+        },
         // 3. Non-finite state is refused on load.
         Case {
             name: "NaN weight in a checkpoint (eval)",
@@ -768,6 +788,19 @@ fn simulate_shipped(params: &str) -> Vec<String> {
         params,
         "--seconds",
         "0.01",
+        "--out",
+        "out",
+    ])
+}
+
+/// `simulate` of the whole shipped HHHHH with `params` into `out`.
+fn simulate_shipped_whole(params: &str) -> Vec<String> {
+    let take = repo().join("data/deformable-sim-real/HHHHH");
+    args(&[
+        "simulate",
+        &take.display().to_string(),
+        "--params",
+        params,
         "--out",
         "out",
     ])

@@ -129,6 +129,17 @@ fn tiny_calibration(dir: &Path, preset: &str) {
     .unwrap();
 }
 
+/// The study's scene on the coarsest grid (6 x 7) with a 0.2 s rest period, as `dir/quick.toml`.
+fn quick_scene(dir: &Path) {
+    let study = std::fs::read_to_string(repo().join("configs/scenes/study.toml")).unwrap();
+    let quick = study
+        .replace("rest_time_s = 2.0", "rest_time_s = 0.2")
+        .replace("grid = [21, 25]", "grid = [6, 7]")
+        .replace("[health]", "[health]\nobject_outside = false");
+    assert!(quick.contains("grid = [6, 7]") && quick.contains("rest_time_s = 0.2"));
+    std::fs::write(dir.join("quick.toml"), quick).unwrap();
+}
+
 /// Writes `<dir>/<folder>/.lock` naming this test's process: a running process holds the folder.
 fn held_by_this_test(dir: &Path, folder: &str) {
     std::fs::create_dir_all(dir.join(folder)).unwrap();
@@ -445,6 +456,26 @@ fn cases() -> Vec<Case> {
                 ])
             },
             expected: &["--burn-in", "1000000000000", "0..=1000000"],
+        },
+        Case {
+            name: "a posterior threshold above every loss",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                std::fs::create_dir(dir.join("out")).unwrap();
+                std::fs::write(
+                    dir.join("out/evaluations.csv"),
+                    "batch,candidate,k_tri_e,objective,loss,chamfer_m,object_mse_m2\n\
+                     0,0,5e4,-2.995732273553991,0.05,0.1,0.001\n\
+                     0,1,5e5,-2.5257286443082556,0.08,0.1,0.001\n",
+                )
+                .unwrap();
+                args(&["posterior", "calibrate.toml", "--epsilon-loss", "1e19"])
+            },
+            expected: &[
+                "--epsilon-loss 1e19",
+                "out/evaluations.csv",
+                "the posterior would be the prior's box",
+            ],
         },
         Case {
             name: "a posterior config given to the surrogate posterior",
@@ -960,6 +991,153 @@ fn cases() -> Vec<Case> {
             expected: &["--write-params /dev/null", "is a character device"],
         },
         Case {
+            name: "calibration whose config is a file its output folder gets",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                std::fs::create_dir(dir.join("out")).unwrap();
+                std::fs::rename(dir.join("calibrate.toml"), dir.join("out/best.toml")).unwrap();
+                args(&["calibrate", "out/best.toml"])
+            },
+            expected: &[
+                "out/best.toml: key `out_dir` = out",
+                "writes out/best.toml there",
+                "the calibration config",
+                "another output folder",
+            ],
+        },
+        Case {
+            name: "calibration whose scene is a file its output folder gets",
+            setup: |dir| {
+                tiny_calibration(dir, "out/calibrated.toml");
+                std::fs::create_dir(dir.join("out")).unwrap();
+                std::fs::copy(
+                    repo().join("configs/scenes/study.toml"),
+                    dir.join("out/calibrated.toml"),
+                )
+                .unwrap();
+                args(&["calibrate", "calibrate.toml", "--out", "./out"])
+            },
+            expected: &[
+                "--out ./out",
+                "writes ./out/calibrated.toml there",
+                "`sim.preset`",
+            ],
+        },
+        Case {
+            name: "simulate: a span beyond the recording",
+            setup: |_| {
+                args(&[
+                    "simulate",
+                    &trajectory(),
+                    "--seconds",
+                    "1e300",
+                    "--out",
+                    "out",
+                ])
+            },
+            expected: &[
+                "--seconds 1e300",
+                "at most the recording's 5.8792 s",
+                "HHHHH",
+            ],
+        },
+        Case {
+            name: "simulate: stills closer than the recorded frames",
+            setup: |_| args(&["simulate", &trajectory(), "--png-every", "1e-300"]),
+            expected: &["--png-every 1e-300", "one recorded frame"],
+        },
+        Case {
+            name: "simulate: one GIF frame in ages",
+            setup: |_| {
+                args(&[
+                    "simulate",
+                    &trajectory(),
+                    "--frames-every",
+                    "1000000000000000",
+                ])
+            },
+            expected: &["--frames-every 1000000000000000", "an hour of recording"],
+        },
+        Case {
+            name: "calibration window beyond every recording (option)",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                args(&["calibrate", "calibrate.toml", "--max-seconds", "1e300"])
+            },
+            expected: &["--max-seconds 1e300", "longest recording's"],
+        },
+        Case {
+            name: "calibration window beyond every recording (config)",
+            setup: |dir| {
+                tiny_calibration(dir, "reference");
+                edit(
+                    &dir.join("calibrate.toml"),
+                    "max_seconds = 0.05",
+                    "max_seconds = 1e30",
+                );
+                args(&["calibrate", "calibrate.toml"])
+            },
+            expected: &[
+                "calibrate.toml: key `sim.max_seconds`",
+                "longest recording's",
+            ],
+        },
+        Case {
+            name: "scene: a lattice search without end",
+            setup: |_| {
+                let manifest = repo().join("data/packages-v1/manifest.json");
+                args(&[
+                    "scene",
+                    "from-manifest",
+                    manifest.to_str().unwrap(),
+                    "--out",
+                    "scene.toml",
+                    "--max-vertices",
+                    "1000000000000",
+                ])
+            },
+            expected: &["--max-vertices", "1000000000000", "2..=1000"],
+        },
+        Case {
+            name: "scene written over its base scene",
+            setup: |dir| {
+                std::fs::copy(
+                    repo().join("configs/scenes/calibrated-coarse-soft-film.toml"),
+                    dir.join("base.toml"),
+                )
+                .unwrap();
+                let manifest = repo().join("data/packages-v1/manifest.json");
+                args(&[
+                    "scene",
+                    "from-manifest",
+                    manifest.to_str().unwrap(),
+                    "--base",
+                    "base.toml",
+                    "--out",
+                    "./base.toml",
+                ])
+            },
+            expected: &["--out ./base.toml", "the base scene (--base)"],
+        },
+        Case {
+            name: "scene written over its manifest",
+            setup: |dir| {
+                std::fs::copy(
+                    repo().join("data/packages-v1/manifest.json"),
+                    dir.join("manifest.json"),
+                )
+                .unwrap();
+                args(&[
+                    "scene",
+                    "from-manifest",
+                    "manifest.json",
+                    "--out",
+                    "manifest.json",
+                ])
+            },
+            expected: &["--out manifest.json", "the manifest"],
+        },
+        Case {
             name: "seal fit on a dataset without a failure take",
             setup: |dir| {
                 seal_config(dir);
@@ -1041,6 +1219,295 @@ fn bad_inputs_exit_with_2_name_the_culprit_and_write_nothing() {
     }
     if let Some(path) = std::env::var_os("RLPKG_BAD_INPUTS_TABLE") {
         std::fs::write(path, table).unwrap();
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Where a stream of the command goes.
+#[derive(Clone, Copy, PartialEq)]
+enum Stream {
+    /// Read by the test.
+    Read,
+    /// `/dev/full`: every write fails with ENOSPC.
+    Full,
+    /// A pipe whose reader went away at once (`| head`): every write fails with EPIPE.
+    Closed,
+}
+
+impl Stream {
+    fn stdio(self) -> std::process::Stdio {
+        match self {
+            Stream::Read | Stream::Closed => std::process::Stdio::piped(),
+            Stream::Full => std::fs::File::create("/dev/full").unwrap().into(),
+        }
+    }
+}
+
+/// A command whose standard output or error cannot be written.
+struct StreamCase {
+    name: &'static str,
+    setup: fn(&Path) -> Vec<String>,
+    stdout: Stream,
+    stderr: Stream,
+    /// 2 when standard output is full (naming it), 0 when its reader went away.
+    code: i32,
+    expected: &'static [&'static str],
+    /// The file the command must have written all the same (the finished work), if it writes one.
+    writes: Option<&'static str>,
+}
+
+/// A command that finishes its work into a full standard output: exit 2 naming it.
+fn full(
+    name: &'static str,
+    setup: fn(&Path) -> Vec<String>,
+    writes: Option<&'static str>,
+) -> StreamCase {
+    StreamCase {
+        name,
+        setup,
+        stdout: Stream::Full,
+        stderr: Stream::Read,
+        code: 2,
+        expected: &["error: standard output", "the command finished"],
+        writes,
+    }
+}
+
+fn stream_cases() -> Vec<StreamCase> {
+    vec![
+        full(
+            "eval --json into a full stdout",
+            |dir| {
+                let run = run_copy(dir);
+                args(&["eval", &run, "--episodes", "2", "--json"])
+            },
+            None,
+        ),
+        full(
+            "eval into a full stdout",
+            |dir| {
+                let run = run_copy(dir);
+                args(&["eval", &run, "--episodes", "2"])
+            },
+            None,
+        ),
+        full(
+            "export --json into a full stdout",
+            |dir| {
+                let run = run_copy(dir);
+                args(&[
+                    "export", &run, "--out", "p.onnx", "--verify", "10", "--json",
+                ])
+            },
+            Some("p.onnx"),
+        ),
+        full(
+            "bench ppo into a full stdout",
+            |_| {
+                args(&[
+                    "bench",
+                    "ppo",
+                    "--backend",
+                    "ndarray",
+                    "--minibatch",
+                    "64",
+                    "--minibatches",
+                    "1",
+                    "--env-steps",
+                    "100",
+                    "--num-envs",
+                    "2",
+                    "--json",
+                ])
+            },
+            None,
+        ),
+        full(
+            "bench sim --json into a full stdout",
+            |_| {
+                args(&[
+                    "bench",
+                    "sim",
+                    "--grid",
+                    "6x7",
+                    "--envs",
+                    "1",
+                    "--seconds",
+                    "0.1",
+                    "--workload",
+                    "command",
+                    "--json",
+                ])
+            },
+            None,
+        ),
+        full(
+            "simulate into a full stdout",
+            |dir| {
+                quick_scene(dir);
+                args(&[
+                    "simulate",
+                    &trajectory(),
+                    "--params",
+                    "quick.toml",
+                    "--seconds",
+                    "0.01",
+                    "--out",
+                    "out",
+                ])
+            },
+            Some("out/summary.json"),
+        ),
+        full(
+            "train into a full stdout",
+            |dir| {
+                write_tiny(dir);
+                args(&["train", "tiny.toml"])
+            },
+            Some("runs/tiny/policy.onnx"),
+        ),
+        full(
+            "scene from-manifest into a full stdout",
+            |_| {
+                let manifest = repo().join("data/packages-v1/manifest.json");
+                args(&[
+                    "scene",
+                    "from-manifest",
+                    manifest.to_str().unwrap(),
+                    "--out",
+                    "scene.toml",
+                    "--base",
+                    repo()
+                        .join("configs/scenes/calibrated-coarse-soft-film.toml")
+                        .to_str()
+                        .unwrap(),
+                ])
+            },
+            Some("scene.toml"),
+        ),
+        full(
+            "import-motive into a full stdout",
+            |dir| {
+                shipped_config(
+                    dir,
+                    "motive.toml",
+                    "\n[takes]\n",
+                    "\n[takes]\n\"a30_m0.5_high_excerpt\" = { split = \"train\", object_total_mass_kg = 0.2268 }\n",
+                );
+                import_args()
+            },
+            Some("out/manifest.toml"),
+        ),
+        full(
+            "calibrate into a full stdout",
+            |dir| {
+                quick_scene(dir);
+                tiny_calibration(dir, "quick.toml");
+                args(&["calibrate", "calibrate.toml"])
+            },
+            Some("out/calibrated.toml"),
+        ),
+        StreamCase {
+            name: "help into a full stdout",
+            setup: |_| args(&["--help"]),
+            stdout: Stream::Full,
+            stderr: Stream::Read,
+            code: 2,
+            expected: &["error: standard output"],
+            writes: None,
+        },
+        StreamCase {
+            name: "a bad run with a full stderr",
+            setup: |_| args(&["eval", "norun"]),
+            stdout: Stream::Read,
+            stderr: Stream::Full,
+            code: 2,
+            expected: &[],
+            writes: None,
+        },
+        StreamCase {
+            name: "eval into a reader that went away",
+            setup: |dir| {
+                let run = run_copy(dir);
+                args(&["eval", &run, "--episodes", "2"])
+            },
+            stdout: Stream::Closed,
+            stderr: Stream::Read,
+            code: 0,
+            expected: &[],
+            writes: None,
+        },
+        StreamCase {
+            name: "train into a reader that went away (stdout and stderr)",
+            setup: |dir| {
+                write_tiny(dir);
+                args(&["train", "tiny.toml"])
+            },
+            stdout: Stream::Closed,
+            stderr: Stream::Closed,
+            code: 0,
+            expected: &[],
+            writes: Some("runs/tiny/policy.onnx"),
+        },
+    ]
+}
+
+#[test]
+fn a_full_or_closed_stream_never_panics_nor_loses_the_work() {
+    let mut failures = Vec::new();
+    for case in stream_cases() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = (case.setup)(dir.path());
+        let before = snapshot(dir.path());
+        let mut child = Command::new(env!("CARGO_BIN_EXE_rlpkg"))
+            .args(&args)
+            .current_dir(dir.path())
+            .stdout(case.stdout.stdio())
+            .stderr(case.stderr.stdio())
+            .spawn()
+            .unwrap();
+        if case.stdout == Stream::Closed {
+            drop(child.stdout.take());
+        }
+        if case.stderr == Stream::Closed {
+            drop(child.stderr.take());
+        }
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let mut problems = Vec::new();
+        if out.status.code() != Some(case.code) {
+            problems.push(format!("exit code {:?}", out.status.code()));
+        }
+        for text in case.expected {
+            if !stderr.contains(text) {
+                problems.push(format!("message lacks `{text}`"));
+            }
+        }
+        if stderr.contains("panicked") {
+            problems.push("panic".into());
+        }
+        let after = snapshot(dir.path());
+        if before
+            .iter()
+            .any(|(path, bytes)| after.get(path) != Some(bytes))
+        {
+            problems.push("an input changed".into());
+        }
+        match case.writes {
+            Some(file) if !dir.path().join(file).is_file() => {
+                problems.push(format!("{file} was not written"))
+            }
+            None if after != before => problems.push("the folder changed".into()),
+            _ => {}
+        }
+        if !problems.is_empty() {
+            failures.push(format!(
+                "{}: {}\n  rlpkg {:?}\n  stderr: {stderr}",
+                case.name,
+                problems.join(", "),
+                args
+            ));
+        }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

@@ -24,7 +24,9 @@ use rlpkg_replay::{set_param, Candidate};
 use rlpkg_sim::SceneConfig;
 
 use crate::error::input_error;
-use crate::files::{check_not_input, check_output, lock_folder, Input};
+use crate::files::{
+    check_not_input, check_output, lock_folder, remove_staging_leftovers, resolved, Input, Staging,
+};
 
 /// Progress-bar ticks per batch.
 const TICKS_PER_BATCH: u64 = 1000;
@@ -66,12 +68,17 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         )));
     }
     check_write_params(&args, &config)?;
+    check_out_dir(&args, &config)?;
     let (ids, trajectories) = config.training_trajectories().map_err(input_error)?;
+    check_time_window(&args, &config, &trajectories)?;
     let scene = config.scene(&args.config).map_err(input_error)?;
     check_bounds_in_scene(&config, &scene, &args.config)?;
     // One command at a time in the output folder: nothing in it is removed (`--fresh`, leftovers)
     // or written before the lock is held.
     let _lock = lock_folder(&config.out_dir, true)?;
+    for path in remove_staging_leftovers(&config.out_dir, STAGING_PREFIX)? {
+        eprintln!("removed the leftover staging folder {}", path.display());
+    }
     let names: Vec<String> = config.params.iter().map(|p| p.name.clone()).collect();
     let space = config.space();
     if let Some(smc) = config.smc {
@@ -222,11 +229,16 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         config.sim.max_seconds,
         &args.config,
     )?;
+    let staging = Staging::new(out_dir, STAGING_PREFIX)?;
+    driver::write_atomically(&staging.path("calibrated.toml"), text.as_bytes())
+        .map_err(driver_error)?;
+    place_outputs(
+        staging,
+        &["calibrated.toml"],
+        args.write_params.as_deref(),
+        &text,
+    )?;
     let calibrated_path = out_dir.join("calibrated.toml");
-    driver::write_atomically(&calibrated_path, text.as_bytes()).map_err(driver_error)?;
-    if let Some(path) = &args.write_params {
-        driver::write_atomically(path, text.as_bytes()).map_err(driver_error)?;
-    }
     print_summary(
         &best,
         wall,
@@ -340,11 +352,11 @@ fn run_posterior(
         config.sim.max_seconds,
         &args.config,
     )?;
-    driver::write_atomically(&out_dir.join("calibrated.toml"), text.as_bytes())
+    // The files that tell a finished posterior (the scene, the corner plot, the summary that
+    // `eval --params` and a transport task read) are staged and moved into place together.
+    let staging = Staging::new(out_dir, STAGING_PREFIX)?;
+    driver::write_atomically(&staging.path("calibrated.toml"), text.as_bytes())
         .map_err(driver_error)?;
-    if let Some(path) = &args.write_params {
-        driver::write_atomically(path, text.as_bytes()).map_err(driver_error)?;
-    }
     let space = config.space();
     let unit: Vec<Vec<f64>> = posterior.draws.iter().map(|d| space.to_unit(d)).collect();
     let best_values: Vec<f64> = space
@@ -353,16 +365,31 @@ fn run_posterior(
         .map(|n| posterior.best.params[*n])
         .collect();
     let best_unit = space.to_unit(&best_values);
-    let corner = out_dir.join("corner.png");
-    crate::render::plot::write_corner_plot(&corner, &space.names(), &unit, &best_unit)?;
+    crate::render::plot::write_corner_plot(
+        &staging.path("corner.png"),
+        &space.names(),
+        &unit,
+        &best_unit,
+    )
+    .map_err(crate::error::output_error)?;
     // The calibration the draws came from, so that a transport task or `eval --params` given this
     // folder can rebuild (and check) the scene they are parameters of.
     let summary = posterior_files::summary_json(&args.config, out_dir, &[], &posterior)?;
     driver::write_atomically(
-        &out_dir.join(posterior_files::SUMMARY_FILE),
+        &staging.path(posterior_files::SUMMARY_FILE),
         summary.as_bytes(),
     )
     .map_err(driver_error)?;
+    place_outputs(
+        staging,
+        &[
+            "corner.png",
+            "calibrated.toml",
+            posterior_files::SUMMARY_FILE,
+        ],
+        args.write_params.as_deref(),
+        &text,
+    )?;
     print!("{}", posterior_table(&posterior));
     print!("{}", rlpkg_calib::fisher::fisher_table(&posterior.fisher));
     println!(
@@ -383,6 +410,24 @@ fn run_posterior(
         println!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// The hidden folder inside the output folder that a calibration's final files are staged in.
+const STAGING_PREFIX: &str = ".calibrate-";
+
+/// Writes `--write-params` (when given) and moves the staged `names` into the output folder,
+/// unless a signal asked the command to stop: then nothing of the final set is written.
+fn place_outputs(
+    staging: Staging,
+    names: &[&str],
+    write_params: Option<&Path>,
+    scene: &str,
+) -> anyhow::Result<()> {
+    crate::interrupt::check()?;
+    if let Some(path) = write_params {
+        driver::write_atomically(path, scene.as_bytes()).map_err(driver_error)?;
+    }
+    staging.place(names)
 }
 
 /// Creates the output folder and writes the objective `record` into it.
@@ -456,6 +501,78 @@ fn check_write_params(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow:
             .map(|file| Input::File(file, "a file of the calibration's output folder")),
     );
     check_not_input(OPTION, path, &inputs)
+}
+
+/// The output folder must not be where one of the calibration's inputs (its config, its scene)
+/// sits under the name of a file the calibration writes: checked before any simulation.
+fn check_out_dir(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow::Result<()> {
+    use rlpkg_calib::sampled_posterior::POSTERIOR_FILES;
+    let mut inputs = vec![(args.config.as_path(), "the calibration config")];
+    if !matches!(config.sim.preset.as_str(), "reference" | "physical") {
+        inputs.push((
+            Path::new(&config.sim.preset),
+            "the config's scene (`sim.preset`)",
+        ));
+    }
+    let mut names: Vec<&str> = driver::OUTPUT_FILES.to_vec();
+    names.extend(POSTERIOR_FILES);
+    names.extend(["corner.png", posterior_files::SUMMARY_FILE]);
+    for name in names {
+        let output = config.out_dir.join(name);
+        let Some(target) = resolved(&output) else {
+            continue; // the folder does not exist yet: nothing in it is an input
+        };
+        for (input, what) in &inputs {
+            if resolved(input).is_some_and(|input| input == target) {
+                let given = match &args.out {
+                    Some(out) => format!("--out {}", out.display()),
+                    None => format!(
+                        "{}: key `out_dir` = {}",
+                        args.config.display(),
+                        config.out_dir.display()
+                    ),
+                };
+                return Err(input_error(format!(
+                    "{given}: the calibration writes {} there, which is {}, {what}; expected \
+                     another output folder",
+                    output.display(),
+                    input.display()
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A time window longer than every recording would compare nothing less than the whole of each:
+/// a value beyond the longest is a mistake (e.g. milliseconds given as seconds), said before any
+/// simulation.
+fn check_time_window(
+    args: &CalibrateArgs,
+    config: &CalibrateConfig,
+    trajectories: &[Trajectory],
+) -> anyhow::Result<()> {
+    let Some(seconds) = config.sim.max_seconds else {
+        return Ok(());
+    };
+    let longest = trajectories
+        .iter()
+        .filter_map(|t| Some(t.tool.t.last()? - t.tool.t.first()?))
+        .fold(0.0, f64::max);
+    if seconds <= longest {
+        return Ok(());
+    }
+    let given = match args.max_seconds {
+        Some(_) => format!("--max-seconds {seconds:?}"),
+        None => format!(
+            "{}: key `sim.max_seconds` = {seconds:?}",
+            args.config.display()
+        ),
+    };
+    Err(input_error(format!(
+        "{given}: expected at most the longest recording's {longest:.4} s; leave it out to \
+         compare the whole recordings"
+    )))
 }
 
 /// The evaluation log and the output files are the user's (exit 2: malformed log, folder that is

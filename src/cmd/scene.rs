@@ -35,9 +35,9 @@ pub struct FromManifestArgs {
     #[arg(long, default_value = DEFAULT_BASE)]
     pub base: PathBuf,
     /// Largest grid (vertices along one side) tried when looking for a lattice through every
-    /// marker site.
-    #[arg(long, default_value_t = 64)]
-    pub max_vertices: usize,
+    /// marker site (2 to 1000: a search beyond would only take longer to say there is none).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u64).range(2..=1000))]
+    pub max_vertices: u64,
 }
 
 /// The scene the transport task trains on: its calibrated soft-film parameters, block descent at
@@ -52,6 +52,15 @@ pub fn run(command: SceneCommand) -> anyhow::Result<()> {
 }
 
 fn from_manifest(args: FromManifestArgs) -> anyhow::Result<()> {
+    // The scene written must replace neither file it is built from.
+    crate::files::check_not_input(
+        "--out",
+        &args.out,
+        &[
+            crate::files::Input::File(&args.manifest, "the manifest"),
+            crate::files::Input::File(&args.base, "the base scene (--base)"),
+        ],
+    )?;
     if args.out.is_dir() {
         return Err(input_error(format!(
             "{}: is a folder; expected the path of the scene TOML to write (--out)",
@@ -74,7 +83,7 @@ fn from_manifest(args: FromManifestArgs) -> anyhow::Result<()> {
         &description,
         base,
         &base_name,
-        args.max_vertices,
+        args.max_vertices as usize,
         &command,
         &args.out.display().to_string(),
     )

@@ -2,6 +2,7 @@
 //! run the PPO update, log, checkpoint; repeat.
 
 use std::collections::VecDeque;
+use std::io::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
@@ -525,7 +526,10 @@ impl Trainer {
                 && show_progress
                 && (self.update.is_multiple_of(10) || self.update == last)
             {
-                eprintln!(
+                // A progress line that cannot be written (stderr closed or full) is dropped:
+                // `eprintln!` would panic and lose the run.
+                let _ = writeln!(
+                    std::io::stderr(),
                     "update {}/{num_updates}  steps {}  SPS {sps:.0}  mean return {:.1}",
                     self.update,
                     self.global_step,

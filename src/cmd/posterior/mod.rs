@@ -101,6 +101,9 @@ pub struct PosteriorArgs {
     pub posterior: Option<PathBuf>,
 }
 
+/// The hidden folder inside the output folder the posterior's files are staged in.
+const STAGING_PREFIX: &str = ".posterior-";
+
 /// The files `rlpkg posterior` writes into its output folder.
 const OUTPUT_FILES: [&str; 3] = [SAMPLES_FILE, SUMMARY_FILE, "profiles.csv"];
 
@@ -159,20 +162,28 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
         );
         evaluations.extend(replayed);
     }
+    check_threshold_below_worst(&args, &evaluations, &log_path)?;
     let result = posterior::infer(&space, &evaluations, &settings).map_err(|e| match e {
+        // A threshold the log cannot meet is the option's: name it first.
+        PosteriorError::Setting(_) if args.epsilon_loss.is_some() => input_error(format!(
+            "--epsilon-loss {:?}: {}: {e}",
+            args.epsilon_loss.unwrap_or_default(),
+            log_path.display()
+        )),
         PosteriorError::TooFew { .. } | PosteriorError::Setting(_) => {
             input_error(format!("{}: {e}", log_path.display()))
         }
         other => anyhow::Error::new(other),
     })?;
 
+    // One command at a time in the output folder; its files are staged and moved into place
+    // together, the summary last, so that a folder with a summary holds the whole posterior.
     let out = args.out.clone().unwrap_or(calibration.join("posterior"));
-    std::fs::create_dir_all(&out).map_err(|e| {
-        input_error(format!(
-            "{}: cannot create the output folder: {e}",
-            out.display()
-        ))
-    })?;
+    let _lock = crate::files::lock_folder(&out, true)?;
+    for path in crate::files::remove_staging_leftovers(&out, STAGING_PREFIX)? {
+        eprintln!("removed the leftover staging folder {}", path.display());
+    }
+    let staging = crate::files::Staging::new(&out, STAGING_PREFIX)?;
     let summary =
         posterior_files::summary_json(&args.config, &calibration, &args.replays, &result.summary)?;
     for (file, text) in OUTPUT_FILES.iter().zip([
@@ -180,9 +191,36 @@ pub fn run(args: PosteriorArgs) -> anyhow::Result<()> {
         summary,
         posterior::profiles_csv(&result.profiles),
     ]) {
-        write_atomic(&out.join(file), text.as_bytes()).map_err(output_error)?;
+        write_atomic(&staging.path(file), text.as_bytes()).map_err(output_error)?;
     }
+    staging.place(&[SAMPLES_FILE, "profiles.csv", SUMMARY_FILE])?;
     print_table(&result, &log_path, &out);
+    Ok(())
+}
+
+/// An `--epsilon-loss` at or above every finite loss of the log keeps every evaluation: the
+/// posterior would be the prior's box, said as if it were inferred.
+fn check_threshold_below_worst(
+    args: &PosteriorArgs,
+    evaluations: &[posterior::Evaluation],
+    log_path: &Path,
+) -> anyhow::Result<()> {
+    let Some(loss) = args.epsilon_loss else {
+        return Ok(());
+    };
+    let worst = evaluations
+        .iter()
+        .map(|e| e.loss)
+        .filter(|l| l.is_finite() && *l > 0.0)
+        .fold(f64::NAN, f64::max);
+    if worst.is_finite() && loss >= worst {
+        return Err(input_error(format!(
+            "--epsilon-loss {loss:?}: {}: every evaluation is within it (the worst finite loss \
+             is {worst:.6e}), so the posterior would be the prior's box; expected a loss below \
+             {worst:.6e}",
+            log_path.display()
+        )));
+    }
     Ok(())
 }
 

@@ -32,7 +32,7 @@ use rlpkg_sim::SceneConfig;
 use crate::error::{input_error, output_error};
 use crate::files::write_atomic;
 use replay::Replay;
-use schedule::ScheduleOptions;
+use schedule::{ScheduleOptions, RECORDING_RATE_HZ};
 
 /// Arguments of `rlpkg simulate`.
 #[derive(Args, Debug)]
@@ -89,6 +89,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         )));
     }
     let recording = load_trajectory(dir).map_err(input_error)?;
+    check_span(&args, &recording)?;
     let (config, config_source) = scene_config(&args)?;
     let out = args
         .out
@@ -105,6 +106,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     // hidden staging folder inside `out` and moved into place once the replay ended: a signal, a
     // full disk or an error leaves `out` as it was (the staging folder is removed when dropped).
     let _cooperation = crate::interrupt::Cooperation::start();
+    let mut new_folder = NewFolder((!out.exists()).then(|| out.clone()));
     prepare_output(&out)?;
     let staging = tempfile::Builder::new()
         .prefix(STAGING_PREFIX)
@@ -146,6 +148,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     )
     .map_err(output_error)?;
     move_into_place(staging.path(), &out)?;
+    new_folder.0 = None;
     outcome.print(wall_s, &out);
     // The scene's values and step are the user's: a replay they cannot carry is bad input (exit 2).
     if let Some((frame, t)) = outcome.non_finite {
@@ -164,6 +167,36 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
             event.time - replay.rest_s,
             out.display()
         )));
+    }
+    Ok(())
+}
+
+/// The output folder a replay created, removed again (when empty) unless its files were moved into
+/// it: a replay stopped by a signal or an error leaves no empty folder behind. Declared before
+/// the staging folder inside it, so dropped after it.
+struct NewFolder(Option<PathBuf>);
+
+impl Drop for NewFolder {
+    fn drop(&mut self) {
+        if let Some(folder) = &self.0 {
+            let _ = std::fs::remove_dir(folder.join("frames"));
+            let _ = std::fs::remove_dir(folder);
+        }
+    }
+}
+
+/// `--seconds` beyond the recording would do nothing (the whole recording is replayed).
+fn check_span(args: &SimulateArgs, recording: &rlpkg_mocap::Trajectory) -> anyhow::Result<()> {
+    let times = &recording.tool.t;
+    let duration = times.last().zip(times.first()).map_or(0.0, |(l, f)| l - f);
+    if let Some(seconds) = args.seconds {
+        if seconds > duration {
+            return Err(input_error(format!(
+                "--seconds {seconds:?}: expected at most the recording's {duration:.4} s \
+                 ({}); leave it out to replay the whole recording",
+                args.trajectory.display()
+            )));
+        }
     }
     Ok(())
 }
@@ -326,15 +359,25 @@ fn prepare_output(out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Upper bound of `--frames-every`: one GIF frame per hour of recording.
+const MAX_FRAMES_EVERY: usize = 3600 * RECORDING_RATE_HZ as usize;
+
+/// Upper bound of `--png-every` (s): one still per hour of simulated time.
+const MAX_PNG_EVERY_S: f64 = 3600.0;
+
 fn check_options(args: &SimulateArgs) -> anyhow::Result<()> {
-    if args.frames_every == 0 {
-        return Err(input_error(
-            "--frames-every 0: expected a whole number of frames of at least 1",
-        ));
-    }
-    if !(args.png_every.is_finite() && args.png_every > 0.0) {
+    if !(1..=MAX_FRAMES_EVERY).contains(&args.frames_every) {
         return Err(input_error(format!(
-            "--png-every {}: expected a positive number of seconds",
+            "--frames-every {}: expected a whole number of frames in [1, {MAX_FRAMES_EVERY}] \
+             (an hour of recording)",
+            args.frames_every
+        )));
+    }
+    let png_range = 1.0 / RECORDING_RATE_HZ..=MAX_PNG_EVERY_S;
+    if !png_range.contains(&args.png_every) {
+        return Err(input_error(format!(
+            "--png-every {:?}: expected a number of seconds in [1/{RECORDING_RATE_HZ} (one \
+             recorded frame), {MAX_PNG_EVERY_S}]",
             args.png_every
         )));
     }
