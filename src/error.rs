@@ -1,12 +1,13 @@
 //! Exit-code policy, for every command: bad user input (a file, a key, a value) exits with code 2,
 //! a command stopped by Ctrl-C or SIGTERM with 130, anything else with 1. The errors of the library
-//! crates are sorted here ([`agent_error`], [`export_error`]).
+//! crates are sorted here ([`agent_error`], [`export_error`], [`run_error`]).
 
 use std::fmt;
 use std::path::Path;
 
 use rlpkg_agents::export::ExportError;
 use rlpkg_agents::AgentError;
+use rlpkg_env::transport::RunError;
 
 /// An error in what the user gave: a file that is missing or malformed, a key that is unknown, a
 /// value out of range. The message must name the file, the key or line, and what was expected.
@@ -56,6 +57,17 @@ pub fn export_error(err: ExportError, given: Option<&Path>) -> anyhow::Error {
             input_error(format!("{}: {err}", path.display()))
         }
         _ => err.into(),
+    }
+}
+
+/// An error of an evaluation or an optimisation of the transport task: the user's (exit 2) for
+/// bad input, [`crate::interrupt::Interrupted`] (exit 130) for a stop request, a fault otherwise.
+pub fn run_error(err: RunError) -> anyhow::Error {
+    match err {
+        RunError::Input(message) => input_error(message),
+        RunError::Stopped => crate::interrupt::Interrupted.into(),
+        RunError::Env(e) => e.into(),
+        RunError::Policy(e) => anyhow::Error::from_boxed(e),
     }
 }
 

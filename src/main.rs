@@ -43,6 +43,7 @@ mod cmd;
 mod error;
 mod files;
 mod interrupt;
+mod onnx_file;
 mod overrides;
 mod render;
 mod tasks;

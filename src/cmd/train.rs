@@ -13,11 +13,11 @@ use rlpkg_agents::runners::{
     changed_inputs, clean_leftovers, record_inputs, run_config_path, INPUTS_FILE, POLICY_FILE,
 };
 use rlpkg_agents::{TrainedPolicy, Trainer};
+use rlpkg_env::transport::replaced_packages_line;
 
-use crate::cmd::eval::replaced_packages_line;
-use crate::cmd::export::{export_policy, ExportOptions};
 use crate::error::{agent_error, input_error};
 use crate::files::lock_folder;
+use crate::onnx_file::{export_policy, ExportOptions};
 use crate::overrides::Override;
 use crate::tasks::Training;
 

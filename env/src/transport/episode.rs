@@ -542,6 +542,20 @@ impl Transport {
     }
 }
 
+/// The line `rlpkg train` and `rlpkg eval` print after a reset: how many of the `settled`
+/// randomised packages were `replaced` by the unrandomised one (draws the scene's solver cannot
+/// carry at its step, and `weak_grasps` the cell's grasp check refuses).
+pub fn replaced_packages_line(settled: usize, replaced: usize, weak_grasps: usize) -> String {
+    let mut line = format!(
+        "settled packages: {settled}, {replaced} of them replaced by the unrandomised package (not \
+         sealed or frozen at the scene's step"
+    );
+    if weak_grasps > 0 {
+        line += &format!(", or {weak_grasps} below the grasp check's vacuum");
+    }
+    line + ")"
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -54,18 +54,25 @@
 //! - `sensors`: the cell's sensors (vacuum leak model, wrist wrench, noise, delay lines);
 //! - `reward`: failure, success, reward terms and the info row of a step;
 //! - `snapshot`: the saved state for checkpoints (serde; the flat layout is read too);
-//! - `evaluate`: episode outcomes and traces for evaluation;
+//! - `outcome`: episode outcomes, traces, their summaries and the per-episode table;
+//! - `evaluation`: a policy beside the baselines over the same seeded episodes (`rlpkg eval`);
 //! - `optimize`: the cross-entropy method over an open-loop command's knots (`rlpkg optimize`);
+//! - `optimize_config`: the config of `rlpkg optimize`;
+//! - `optimize_output`: the files of `rlpkg optimize`, and their reader;
+//! - `mpc`: receding-horizon control (`rlpkg optimize --mpc`);
 //! - `geometry`: vector and rotation helpers.
 
 mod config;
 mod control;
 mod episode;
-mod evaluate;
+mod evaluation;
 mod geometry;
 mod mpc;
 mod observe;
 mod optimize;
+mod optimize_config;
+mod optimize_output;
+mod outcome;
 mod path;
 mod profile;
 mod recordings;
@@ -85,17 +92,28 @@ pub use config::{
     SuccessTolerances, TransportConfig, TransportLimits, TransportRandomization, LIMIT_HEADROOM,
 };
 pub use control::TiltSchedule;
-pub use episode::EpisodeConditions;
-pub use evaluate::{
-    run_episodes, run_traced_episodes, Ending, EpisodeOutcome, EpisodeTable, OutcomeSummary,
-    TracePoint,
+pub use episode::{replaced_packages_line, EpisodeConditions};
+pub use evaluation::{
+    evaluate_policy, EpisodeFilm, EvaluationReport, EvaluationSettings, PolicyActions,
+    ProfileBaseline, RecordedBaseline, RecordingComparison, RecordingSet, RunError, Snapshot,
+    TransportEvaluation,
 };
-pub use mpc::{HorizonSearch, RecedingHorizon};
+pub use mpc::{control_packages, HorizonSearch, RecedingHorizon};
 pub use observe::{
     critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS, WRIST_OBSERVATIONS,
 };
 pub use optimize::{
-    Cem, CemSettings, CommandLibrary, KnotCurve, OpenLoopProblem, RiskMeasure, ToolSample, ACTIONS,
+    optimise_open_loop, Cem, CemSettings, CommandLibrary, KnotCurve, OpenLoopProblem, RiskMeasure,
+    ToolSample, ACTIONS,
+};
+pub use optimize_config::{CemTable, Conditions, Knots, MpcTable, OptimizeConfig, Risk};
+pub use optimize_output::{
+    library_summary_json, IterationCosts, LibraryEntry, MpcRun, OpenLoopResult, OptimizeSummary,
+    OptimizedCommand, OptimizedReadError, OUTPUT_FILES,
+};
+pub use outcome::{
+    run_episodes, run_traced_episodes, Ending, EpisodeOutcome, EpisodeTable, OutcomeSummary,
+    TracePoint,
 };
 pub use path::{ToolPeaks, TransportPath};
 pub use profile::{

@@ -7,8 +7,13 @@
 //! The model is the simulator itself with the episode's true package (mass, object place,
 //! material): what such a loop achieves with a perfect model, and what it costs per control step.
 
+use std::time::Instant;
+
+use super::evaluation::{check, RunError};
 use super::optimize::{Cem, CemSettings, CopyState, KnotCurve, ACTIONS};
-use super::Transport;
+use super::optimize_config::{MpcTable, OptimizeConfig};
+use super::optimize_output::MpcRun;
+use super::{run_traced_episodes, OutcomeSummary, Transport, TransportConfig};
 use crate::{EnvError, VecEnv};
 
 /// The search of each control step.
@@ -204,6 +209,64 @@ fn shifted(curve: &KnotCurve, x: &[f64], dt: f64) -> Vec<f64> {
             (0..curve.knots).map(move |j| curve.value(knots, j as f64 * spacing + dt))
         })
         .collect()
+}
+
+/// Runs the `[conditions]` packages' episodes of `config` on `transport`'s task (`source` is its
+/// configuration file) under receding-horizon control with `settings` (its `[mpc]` table), timing
+/// the planning. Before each control step, `progress` sees how many episodes are still running
+/// and `stop` is asked.
+pub fn control_packages(
+    config: &OptimizeConfig,
+    settings: &MpcTable,
+    transport: TransportConfig,
+    source: &str,
+    stop: &dyn Fn() -> bool,
+    progress: &mut dyn FnMut(usize),
+) -> Result<MpcRun, RunError> {
+    let curve = KnotCurve {
+        knots: settings.knots,
+        horizon_s: settings.horizon_s,
+    };
+    let [initial_mean, std, lower, upper] = config.decision_space(&transport, &curve);
+    let packages = config.conditions.packages;
+    let mut plant = Transport::new(transport, packages, source).map_err(RunError::input)?;
+    // The horizon search's commands are path speeds.
+    plant.drive_path_speed();
+    let search = HorizonSearch {
+        curve,
+        iterations: settings.iterations,
+        cem: config.cem_settings(),
+        initial_mean,
+        std,
+        lower,
+        upper,
+    };
+    let mut controller: Option<RecedingHorizon> = None;
+    let (mut planning_s, mut episode_steps, mut control_steps) = (0.0, 0usize, 0usize);
+    let (outcomes, _) =
+        run_traced_episodes::<RunError>(&mut plant, config.conditions.seed, &[], |env, _| {
+            check(stop)?;
+            // Built after the plant's reset, from its settled packages.
+            let mpc = match &mut controller {
+                Some(mpc) => mpc,
+                None => controller.insert(RecedingHorizon::new(env, search.clone())?),
+            };
+            let running = (0..packages).filter(|&k| !env.is_retired(k)).count();
+            let started = Instant::now();
+            let actions = mpc.actions(env)?;
+            planning_s += started.elapsed().as_secs_f64();
+            episode_steps += running;
+            control_steps += 1;
+            progress(running);
+            Ok(actions)
+        })?;
+    Ok(MpcRun {
+        outcome: OutcomeSummary::of("mpc", &outcomes),
+        control_steps,
+        control_interval_s: plant.control_interval_s(),
+        planning_s,
+        wall_per_control_step_s: planning_s / episode_steps.max(1) as f64,
+    })
 }
 
 #[cfg(test)]

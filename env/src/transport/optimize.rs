@@ -9,7 +9,9 @@
 //! - [`OpenLoopProblem`]: one [`Transport`] of population x K copies, every candidate's K copies
 //!   restored from the same settled start states (the K packages of one seeded reset) and rolled
 //!   out in one batch in evaluation mode; a candidate's cost is minus its episode return, and
-//!   its risk over the K packages the mean blended with a quantile ([`RiskMeasure`]).
+//!   its risk over the K packages the mean blended with a quantile ([`RiskMeasure`]);
+//! - [`optimise_open_loop`]: the iterations of `rlpkg optimize` for the packages of an
+//!   [`OptimizeConfig`].
 //!
 //! The module lives beside the task because a candidate's copy is a replica of another copy's
 //! episode (its draw, its random stream, its simulator state): that needs the task's own
@@ -20,7 +22,12 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rlpkg_sim::EnvSnapshot;
 
+use std::time::Instant;
+
 use super::episode::Episode;
+use super::evaluation::{check, RunError};
+use super::optimize_config::OptimizeConfig;
+use super::optimize_output::{IterationCosts, OpenLoopResult, OptimizeSummary};
 use super::sensors::CopySensors;
 use super::{sim_error, Transport, TransportConfig};
 use crate::{EnvError, VecEnv};
@@ -451,6 +458,92 @@ impl OpenLoopProblem {
             }
         }
     }
+}
+
+/// Optimises the open-loop command of `transport`'s task (`source` is its configuration file) for
+/// the `[conditions]` packages of `config`: `[cem]` iterations over the `[knots]` of the
+/// command; `progress` sees each iteration's costs, `stop` is asked after each iteration.
+pub fn optimise_open_loop(
+    config: &OptimizeConfig,
+    transport: TransportConfig,
+    source: &str,
+    stop: &dyn Fn() -> bool,
+    progress: &mut dyn FnMut(&IterationCosts),
+) -> Result<OpenLoopResult, RunError> {
+    let curve = KnotCurve {
+        knots: config.knots.count,
+        horizon_s: config.knots.horizon_s,
+    };
+    let [mean, std, lower, upper] = config.decision_space(&transport, &curve);
+    let mut cem =
+        Cem::new(mean, std, lower, upper, config.cem_settings()).map_err(RunError::Input)?;
+    let risk = RiskMeasure {
+        quantile: config.risk.quantile,
+        weight: config.risk.weight,
+    };
+    let started = Instant::now();
+    let mut problem = OpenLoopProblem::new(
+        transport,
+        source,
+        config.conditions.seed,
+        config.conditions.packages,
+        config.cem.population,
+        curve,
+    )
+    .map_err(RunError::input)?;
+    let setup_s = started.elapsed().as_secs_f64();
+    let mut history = Vec::new();
+    let mut best: Option<(f64, Vec<f64>, Vec<f64>)> = None;
+    let mut start_cost = f64::NAN;
+    let optimising = Instant::now();
+    for iteration in 0..config.cem.iterations {
+        let candidates = cem.candidates();
+        let package_costs = problem.costs(&candidates)?;
+        check(stop)?;
+        let costs: Vec<f64> = package_costs.iter().map(|c| risk.of(c)).collect();
+        if iteration == 0 {
+            start_cost = costs[0];
+        }
+        let top = cem.update(&candidates, &costs);
+        if best.as_ref().is_none_or(|b| costs[top] < b.0) {
+            best = Some((
+                costs[top],
+                candidates[top].clone(),
+                package_costs[top].clone(),
+            ));
+        }
+        let mut sorted = costs.clone();
+        sorted.sort_by(f64::total_cmp);
+        let elites = &sorted[..config.cem.elites];
+        let row = IterationCosts {
+            iteration,
+            mean_candidate: costs[0],
+            best: costs[top],
+            elite_mean: elites.iter().sum::<f64>() / elites.len() as f64,
+            best_so_far: best.as_ref().map_or(f64::NAN, |b| b.0),
+        };
+        progress(&row);
+        history.push(row);
+    }
+    let optimise_s = optimising.elapsed().as_secs_f64();
+    let (best_cost, best_knots, best_package_costs) = best.expect("at least one iteration");
+    let trace = problem.trace(&best_knots)?;
+    Ok(OpenLoopResult {
+        summary: OptimizeSummary {
+            target_tilt_deg: None,
+            start_cost,
+            best_cost,
+            best_package_costs,
+            episode_time_s: trace.last().map_or(0.0, |s| s.time_s),
+            best_knots,
+            iterations: history,
+        },
+        curve,
+        control_interval_s: problem.control_interval_s(),
+        trace,
+        setup_s,
+        optimise_s,
+    })
 }
 
 #[cfg(test)]

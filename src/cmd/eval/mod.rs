@@ -14,8 +14,6 @@ mod params;
 mod predictive;
 mod transport;
 
-pub(crate) use transport::replaced_packages_line;
-
 use std::path::PathBuf;
 
 use clap::Args;

@@ -135,8 +135,8 @@ mod tests {
     use rlpkg_vec_env::CartPole;
 
     use super::*;
-    use crate::cmd::export::{export_policy, ExportOptions};
     use crate::error::exit_code;
+    use crate::onnx_file::{export_policy, ExportOptions};
 
     fn options() -> ExportOptions {
         ExportOptions {
