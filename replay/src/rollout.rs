@@ -528,12 +528,14 @@ mod tests {
         .unwrap();
         let (top, bottom) = first.0.split_at(upper.len());
         assert_eq!(bottom.len(), upper.len());
+        // Each bottom site under its top site: the same place in plan within a few mm once the
+        // film has sagged for the rest period, one sheet below the other.
+        let plan = |t: &[f64; 3], b: &[f64; 3]| (t[0] - b[0]).hypot(t[2] - b[2]);
+        let mean_plan =
+            top.iter().zip(bottom).map(|(t, b)| plan(t, b)).sum::<f64>() / top.len() as f64;
+        assert!(mean_plan < 5e-3, "mean plan offset {mean_plan} m");
         for (t, b) in top.iter().zip(bottom) {
-            // Same place in plan, one sheet below the other.
-            assert!(
-                (t[0] - b[0]).abs() < 2e-3 && (t[2] - b[2]).abs() < 2e-3,
-                "{t:?} {b:?}"
-            );
+            assert!(plan(t, b) < 0.012, "{t:?} {b:?}");
             assert!(t[1] - b[1] > 0.5 * thickness, "{t:?} above {b:?}");
         }
     }

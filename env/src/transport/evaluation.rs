@@ -204,6 +204,14 @@ pub fn evaluate_policy(
         Some(set) => Some(held_out_configs(transport, set, source)?),
         None => None,
     };
+    // Every recorded baseline's timings before anything is simulated: an unknown level is refused
+    // at once.
+    let recorded_levels = settings
+        .recorded
+        .iter()
+        .map(|velocity| recorded_timings(transport, velocity, source).map(|t| (velocity, t)))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(RunError::input)?;
     let mut rows = Vec::new();
     let mut first_episode: Vec<(String, Vec<TracePoint>)> = Vec::new();
     let mut env = Transport::new(transport.clone(), episodes, source).map_err(RunError::input)?;
@@ -256,8 +264,7 @@ pub fn evaluate_policy(
         table.add(&command.driver, &env, &outcomes);
     }
     let mut recorded = Vec::new();
-    for velocity in &settings.recorded {
-        let timings = recorded_timings(transport, velocity, source).map_err(RunError::input)?;
+    for (velocity, timings) in recorded_levels {
         // The same episodes, with time to finish the slowest recording (the low-velocity ones
         // take 19-22 s): the time limit does not change what an episode draws.
         let mut long = transport.clone();
@@ -452,7 +459,7 @@ mod tests {
 
     fn settings(recorded: &[&str]) -> EvaluationSettings {
         EvaluationSettings {
-            episodes: 2,
+            episodes: 1,
             seed: 3,
             scripted: vec![1.25],
             profile: Vec::new(),
@@ -480,7 +487,7 @@ mod tests {
             .map(|r| r.driver.as_str())
             .collect();
         assert_eq!(drivers, ["policy", "scripted x1.25", "recorded high"]);
-        assert!(found.report.rows.iter().all(|r| r.episodes == 2));
+        assert!(found.report.rows.iter().all(|r| r.episodes == 1));
         assert_eq!(
             found.report.recorded[0].timings.len(),
             transport.paths.len()
@@ -500,7 +507,7 @@ mod tests {
             film.model.num_particles()
         );
         // One header, then one line per driver and episode.
-        assert_eq!(found.episodes.csv().lines().count(), 1 + 3 * 2);
+        assert_eq!(found.episodes.csv().lines().count(), 1 + 3);
     }
 
     #[test]
