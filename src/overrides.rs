@@ -80,8 +80,8 @@ fn parse_key(key: &str) -> Option<Vec<String>> {
     }
 }
 
-/// `text` (the file named `source`) with every override applied in order (a key set twice keeps
-/// the last value), written back as TOML text headed by a comment naming `source` and the
+/// `text` (the file named `source`) with every override applied in order (a key set twice is
+/// refused, naming both options: on a command line it is a slip, not a choice), written back as TOML text headed by a comment naming `source` and the
 /// overrides. A key may be new (its table decides whether it is known); a table that does not
 /// exist yet is added. Replacing a table by a value, or a path through a value, is refused,
 /// naming the option.
@@ -89,7 +89,13 @@ pub fn apply(text: &str, source: &str, overrides: &[Override]) -> Result<String,
     let mut table: Table = text
         .parse()
         .map_err(|e: toml::de::Error| format!("{source}: {}", e.to_string().trim_end()))?;
-    for one in overrides {
+    for (i, one) in overrides.iter().enumerate() {
+        if let Some(first) = overrides[..i].iter().find(|o| o.path == one.path) {
+            return Err(format!(
+                "{one}: `{}` is already set by {first}; expected each key once",
+                one.path.join(".")
+            ));
+        }
         set(&mut table, one).map_err(|reason| format!("{one}: {reason}"))?;
     }
     let body = toml::to_string(&table).map_err(|e| format!("{source}: {e}"))?;
@@ -171,9 +177,13 @@ mod tests {
     }
 
     #[test]
-    fn the_last_of_two_sets_of_one_key_wins() {
-        let doc = applied(&["run.seed=5", "run.seed = 7"]).unwrap();
-        assert_eq!(doc["run"]["seed"].as_integer(), Some(7));
+    fn a_key_set_twice_is_refused_naming_both_options() {
+        let err = applied(&["run.seed=5", "ppo.epochs=4", "run . seed = 7"]).unwrap_err();
+        assert!(
+            err.contains("--set run . seed = 7") && err.contains("already set by --set run.seed=5"),
+            "{err}"
+        );
+        assert!(applied(&["run.seed=5", "run.env=x"]).is_ok());
     }
 
     #[test]

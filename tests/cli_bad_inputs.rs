@@ -275,6 +275,29 @@ fn cases() -> Vec<Case> {
             expected: &["--name", "../x", "plain folder name"],
         },
         Case {
+            name: "run name with a line break",
+            setup: |dir| {
+                write_tiny(dir);
+                args(&["train", "tiny.toml", "--name", "a\nb"])
+            },
+            expected: &["--name", "\"a\\nb\"", "without line breaks"],
+        },
+        Case {
+            name: "one key set twice",
+            setup: |dir| {
+                write_tiny(dir);
+                args(&[
+                    "train",
+                    "tiny.toml",
+                    "--set",
+                    "run.seed=1",
+                    "--set",
+                    "run.seed=2",
+                ])
+            },
+            expected: &["--set run.seed=2", "already set by --set run.seed=1"],
+        },
+        Case {
             name: "output folder that is a file",
             setup: |dir| {
                 write_tiny(dir);
@@ -748,6 +771,41 @@ fn cases() -> Vec<Case> {
                 "optimize.toml",
                 "knots.initial_speed_m_s = 100",
                 "limits.max_path_speed_m_s",
+            ],
+        },
+        Case {
+            name: "optimize: a speed spread beyond the task's limit",
+            setup: |dir| {
+                optimize_config(dir, "speed_std_m_s = 0.25", "speed_std_m_s = 1e30");
+                args(&["optimize", "optimize.toml"])
+            },
+            expected: &[
+                "optimize.toml",
+                "knots.speed_std_m_s = 1000000000000000000000000000000",
+                "limits.max_path_speed_m_s",
+            ],
+        },
+        Case {
+            name: "optimize: a tilt spread of a turn",
+            setup: |dir| {
+                optimize_config(dir, "tilt_std_deg = 4.0", "tilt_std_deg = 360.0");
+                args(&["optimize", "optimize.toml"])
+            },
+            expected: &["optimize.toml", "knots.tilt_std_deg = 360", "[0, 90]"],
+        },
+        Case {
+            name: "optimize: a task file that is not there",
+            setup: |dir| {
+                let text = std::fs::read_to_string(repo().join("configs/optimize/transport.toml"))
+                    .unwrap()
+                    .replace("configs/train/transport.toml", "configs/train/none.toml");
+                std::fs::write(dir.join("optimize.toml"), text).unwrap();
+                args(&["optimize", "optimize.toml"])
+            },
+            expected: &[
+                "optimize.toml",
+                "transport = \"configs/train/none.toml\"",
+                "expected a training config",
             ],
         },
         Case {

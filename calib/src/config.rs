@@ -548,7 +548,7 @@ upper = 2.0
         assert!(shipped.disc.hold_at_recorded_start);
         assert_eq!(
             shipped.package.grid,
-            [6 + 5 * first.sim.between, 7 + 6 * first.sim.between]
+            rlpkg_replay::grid_between_markers(first.sim.between)
         );
         // The SI scene's second stage refines the first with the disc's orientation held.
         let si = CalibrateConfig::load(&configs.join("calibrate/soft-film.toml")).unwrap();
@@ -600,7 +600,7 @@ upper = 2.0
                 .unwrap();
         assert_eq!(
             coarse_fit.package.grid,
-            [6 + 5 * coarse.sim.between, 7 + 6 * coarse.sim.between]
+            rlpkg_replay::grid_between_markers(coarse.sim.between)
         );
         assert_eq!(coarse_fit.package.grid, [11, 13]);
         assert_eq!(
@@ -660,7 +660,7 @@ upper = 2.0
         assert_eq!(scene.integrator.substep_rate_hz, 1.0 / last.sim.dt.unwrap());
         assert_eq!(
             scene.package.grid,
-            [6 + 5 * last.sim.between, 7 + 6 * last.sim.between]
+            rlpkg_replay::grid_between_markers(last.sim.between)
         );
     }
 

@@ -322,7 +322,11 @@ mod tests {
         // paths are relative to: they are found from the file's folder upwards.
         // The main job's configuration also names a posterior folder, whose summary names its
         // calibration config, both relative to the repository.
-        for name in ["transport.toml", "transport-sensors-posterior.toml"] {
+        for name in [
+            "transport.toml",
+            "transport-sensors-posterior.toml",
+            "transport-cell.toml",
+        ] {
             let path = root().join("configs/train").join(name);
             let task = Task::from_file("Transport-v0", Some(&path)).unwrap();
             let Task::Transport { config, .. } = &task else {
@@ -334,7 +338,27 @@ mod tests {
         let main =
             read_transport_config(&root().join("configs/train/transport-sensors-posterior.toml"))
                 .unwrap();
-        assert!(main.randomization.package.posterior_draws.is_some());
+        assert_eq!(
+            main.randomization
+                .package
+                .posterior_draws
+                .unwrap()
+                .rows
+                .len(),
+            39
+        );
+        // The cell job trains on the 30 draws its split does not hold out.
+        let cell =
+            read_transport_config(&root().join("configs/train/transport-cell.toml")).unwrap();
+        assert_eq!(
+            cell.randomization
+                .package
+                .posterior_draws
+                .unwrap()
+                .rows
+                .len(),
+            30
+        );
     }
 
     #[test]

@@ -46,4 +46,4 @@ pub use rollout::{
     get_param, mean_loss, rollout, rollout_scheduled, set_param, Candidate, FrameClock,
     FrameObservation, Observer, RolloutOutcome, Schedule, SealFailure, PARAMETER_NAMES,
 };
-pub use target::{load_scene, Target};
+pub use target::{grid_between_markers, load_scene, Target};

@@ -14,6 +14,7 @@
 
 use std::sync::Arc;
 
+use rlpkg_sim::config::PARAM_NAMES;
 use rlpkg_sim::{
     DiscState, HealthEvent, Model, NoSealReason, Params, SceneConfig, SealEventKind, Sheet,
     Simulator, SurfaceEmbedding,
@@ -23,25 +24,21 @@ use crate::error::ReplayError;
 use crate::loss::{FrameComparison, LossWeights, TrajectoryLoss};
 use crate::target::Target;
 
-/// Simulator parameter names that can be set by name: the paper's names, Warp's friction `k_con_f`,
-/// and `disc_mass_scale` (the scene's `disc.mass_scale`, simulated disc kg per recorded kg).
-pub const PARAMETER_NAMES: [&str; 15] = [
-    "k_tri_e",
-    "k_tri_a",
-    "k_tri_d",
-    "k_edge_e",
-    "k_edge_d",
-    "k_cup_e",
-    "k_cup_a",
-    "k_cup_d",
-    "k_spr_e",
-    "k_spr_d",
-    "k_con_e",
-    "k_con_d",
-    "k_con_f",
-    "mu_con",
-    "disc_mass_scale",
-];
+/// The name of the disc's mass scale as a calibrated parameter (the scene's `disc.mass_scale`).
+pub const DISC_MASS_SCALE: &str = "disc_mass_scale";
+
+/// Simulator parameter names that can be set by name: the material parameters of
+/// [`rlpkg_sim::config::PARAM_NAMES`] (the paper's names and Warp's friction `k_con_f`), then
+/// [`DISC_MASS_SCALE`] (simulated disc kg per recorded kg).
+pub const PARAMETER_NAMES: [&str; PARAM_NAMES.len() + 1] = {
+    let mut names = [DISC_MASS_SCALE; PARAM_NAMES.len() + 1];
+    let mut k = 0;
+    while k < PARAM_NAMES.len() {
+        names[k] = PARAM_NAMES[k];
+        k += 1;
+    }
+    names
+};
 
 /// What one calibration candidate sets in every environment it is simulated in: the material
 /// parameters and the disc's mass scale (simulated disc kg per recorded kg, the scene's
@@ -73,25 +70,13 @@ impl Candidate {
 
 /// The slot of the parameter called `name` (see [`PARAMETER_NAMES`]).
 fn slot<'a>(candidate: &'a mut Candidate, name: &str) -> Result<&'a mut f32, ReplayError> {
-    let params = &mut candidate.params;
-    Ok(match name {
-        "k_tri_e" => &mut params.k_tri_e,
-        "k_tri_a" => &mut params.k_tri_a,
-        "k_tri_d" => &mut params.k_tri_d,
-        "k_edge_e" => &mut params.k_edge_e,
-        "k_edge_d" => &mut params.k_edge_d,
-        "k_cup_e" => &mut params.k_cup_e,
-        "k_cup_a" => &mut params.k_cup_a,
-        "k_cup_d" => &mut params.k_cup_d,
-        "k_spr_e" => &mut params.k_spr_e,
-        "k_spr_d" => &mut params.k_spr_d,
-        "k_con_e" => &mut params.k_con_e,
-        "k_con_d" => &mut params.k_con_d,
-        "k_con_f" => &mut params.k_con_f,
-        "mu_con" => &mut params.mu_con,
-        "disc_mass_scale" => &mut candidate.disc_mass_scale,
-        other => return Err(ReplayError::UnknownParameter(other.to_string())),
-    })
+    if name == DISC_MASS_SCALE {
+        return Ok(&mut candidate.disc_mass_scale);
+    }
+    candidate
+        .params
+        .get_mut(name)
+        .ok_or_else(|| ReplayError::UnknownParameter(name.to_string()))
 }
 
 /// Sets the parameter called `name` (see [`PARAMETER_NAMES`]).

@@ -19,6 +19,12 @@ use crate::phase::{phases, Phase};
 /// spacing (about 46 mm), beyond which the site is as likely a neighbour's.
 pub const SITE_GATE_M: f64 = 0.023;
 
+/// The package grid (vertices per layer) of the study's 6 x 7 marker lattice with `between`
+/// particles between neighbouring markers: `[6 + 5 between, 7 + 6 between]`.
+pub fn grid_between_markers(between: usize) -> [usize; 2] {
+    [6 + 5 * between, 7 + 6 * between]
+}
+
 /// 6 x 7 marker grid with `between` particles between markers, and optionally the time step.
 pub fn load_scene(
     preset: &str,
@@ -30,7 +36,7 @@ pub fn load_scene(
         path => SceneConfig::load(std::path::Path::new(path))?,
     };
     if let Some(p) = between {
-        scene.package.grid = [6 + 5 * p, 7 + 6 * p];
+        scene.package.grid = grid_between_markers(p);
     }
     if let Some(dt) = dt {
         scene.integrator.substep_rate_hz = 1.0 / dt;

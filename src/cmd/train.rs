@@ -197,8 +197,14 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A run name is one plain folder name, so the run stays inside `--out-dir`.
+/// A run name is one plain folder name, so the run stays inside `--out-dir`, and printable (a
+/// line break or other control character would split the name in logs and shells).
 fn parse_run_name(name: &str) -> Result<String, String> {
+    if name.chars().any(char::is_control) {
+        return Err(format!(
+            "{name:?}: expected a folder name without line breaks or other control characters"
+        ));
+    }
     let mut parts = Path::new(name).components();
     match (parts.next(), parts.next()) {
         (Some(std::path::Component::Normal(part)), None) if part == name => Ok(name.to_string()),

@@ -202,6 +202,48 @@ pub struct TransportRandomization {
     /// Replay of the settled packages that fail (optional; see [`FailureReplay`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub replay: Option<FailureReplay>,
+    /// Posterior draws kept out of training (optional; see [`HeldOutDraws`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub held_out_draws: Option<HeldOutDraws>,
+}
+
+/// `[transport.randomization.held_out_draws]`: every `every`-th draw of the posterior (its rows
+/// `every`, `2 every`, ... counted from 1) is held out, so that a policy can be evaluated on
+/// materials it never trained on. `rows` says which part the task draws its packages from.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeldOutDraws {
+    /// The period of the held-out rows, in [2, 100].
+    pub every: usize,
+    /// Which draws the packages take: `"training"` (the rest) or `"held_out"`.
+    pub rows: DrawRows,
+}
+
+/// Which part of a posterior's draws a task uses ([`HeldOutDraws`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DrawRows {
+    /// Every draw but the held-out ones.
+    Training,
+    /// The held-out draws only.
+    HeldOut,
+}
+
+impl HeldOutDraws {
+    /// Whether the draw in row `index` (from 0) is held out.
+    pub fn is_held_out(&self, index: usize) -> bool {
+        (index + 1) % self.every == 0
+    }
+
+    /// The rows of `draws` the task uses.
+    pub fn select<T: Clone>(&self, draws: &[T]) -> Vec<T> {
+        draws
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| self.is_held_out(*k) == (self.rows == DrawRows::HeldOut))
+            .map(|(_, row)| row.clone())
+            .collect()
+    }
 }
 
 /// `[transport.randomization.replay]`: during training a share of the episodes starts from a
@@ -334,7 +376,19 @@ impl TransportConfig {
         if let Some(summary) = files.summary {
             check_posterior_scene(self, &summary, source)?;
         }
-        self.randomization.package.posterior_draws = Some(Arc::new(samples.to_draws()));
+        let mut draws = samples.to_draws();
+        if let Some(split) = &self.randomization.held_out_draws {
+            draws.rows = split.select(&draws.rows);
+            if draws.rows.is_empty() {
+                return Err(bad(
+                    source,
+                    "randomization.held_out_draws",
+                    format!("{{ every = {}, rows = {:?} }}", split.every, split.rows),
+                    "a split that leaves the task at least one of the posterior's draws",
+                ));
+            }
+        }
+        self.randomization.package.posterior_draws = Some(Arc::new(draws));
         Ok(())
     }
 
@@ -548,6 +602,24 @@ impl TransportConfig {
                 ));
             }
         }
+        if let Some(split) = &r.held_out_draws {
+            if !(2..=100).contains(&split.every) {
+                return Err(bad(
+                    s,
+                    "randomization.held_out_draws.every",
+                    split.every,
+                    "an integer in [2, 100]",
+                ));
+            }
+            if r.package.posterior.is_none() {
+                return Err(bad(
+                    s,
+                    "randomization.held_out_draws",
+                    format!("{{ every = {} }}", split.every),
+                    "a randomization.package.posterior whose draws it splits",
+                ));
+            }
+        }
         check(
             s,
             "randomization.start_jitter_m",
@@ -652,6 +724,28 @@ impl TransportConfig {
             ),
         ] {
             check(s, key, value, 0.0, high)?;
+        }
+        if let Some(v) = &sensors.vacuum {
+            for (key, [lo, hi], high) in [
+                ("sensors.vacuum.load_leak", v.load_leak, 1.0),
+                ("sensors.vacuum.time_constant_s", v.time_constant_s, 1.0),
+            ] {
+                if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi && hi <= high) {
+                    return Err(bad(
+                        s,
+                        key,
+                        format!("[{lo}, {hi}]"),
+                        &format!("[low, high] within [0, {high}]"),
+                    ));
+                }
+            }
+            check(
+                s,
+                "sensors.vacuum.supply_noise_pa",
+                v.supply_noise_pa,
+                0.0,
+                5e3,
+            )?;
         }
         Ok(())
     }
@@ -953,6 +1047,41 @@ mod tests {
     }
 
     #[test]
+    fn the_cells_vacuum_response_is_checked_and_names_its_key() {
+        let table = sensors_table()
+            + "\n[transport.sensors.vacuum]\nload_leak = [0.0, 0.31]\n\
+               time_constant_s = [0.01, 0.06]\nsupply_noise_pa = 100.0\n";
+        let vacuum = config(&table).sensors.unwrap().vacuum.unwrap();
+        assert_eq!(vacuum.load_leak, [0.0, 0.31]);
+        for (from, to, key) in [
+            (
+                "load_leak = [0.0, 0.31]",
+                "load_leak = [0.31, 0.0]",
+                "load_leak",
+            ),
+            (
+                "load_leak = [0.0, 0.31]",
+                "load_leak = [-0.1, 0.31]",
+                "load_leak",
+            ),
+            ("[0.01, 0.06]", "[0.01, 6.0]", "time_constant_s"),
+            (
+                "supply_noise_pa = 100.0",
+                "supply_noise_pa = 1e9",
+                "supply_noise_pa",
+            ),
+        ] {
+            let err = TransportConfig::from_toml_str(&table.replace(from, to), "t.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("t.toml") && err.contains(&format!("sensors.vacuum.{key}")),
+                "{to}: {err}"
+            );
+        }
+    }
+
+    #[test]
     fn sensor_settings_are_checked_and_name_their_key() {
         let text = sensors_table();
         let sensors = config(&text).sensors.expect("sensors");
@@ -1046,6 +1175,48 @@ mod tests {
     }
 
     const SAMPLES: &str = "k_tri_e,k_spr_e,mu_con\n1000,20,0.5\n2000,30,0.6\n";
+
+    #[test]
+    fn held_out_draws_are_never_among_the_training_draws() {
+        let dir = temp_folder("posterior-held-out");
+        let rows: String = (1..=10).map(|k| format!("{},20,0.5\n", 1000 * k)).collect();
+        let folder = posterior_folder(
+            &dir,
+            &format!("k_tri_e,k_spr_e,mu_con\n{rows}"),
+            "physical",
+            "",
+        );
+        let split = |rows: &str| {
+            let text = with_posterior(&folder).replace(
+                "[transport.randomization.package]",
+                &format!(
+                    "[transport.randomization.held_out_draws]\nevery = 3\nrows = {rows:?}\n\n\
+                     [transport.randomization.package]"
+                ),
+            );
+            let config = config(&text);
+            let draws = config.randomization.package.posterior_draws.unwrap();
+            draws
+                .rows
+                .iter()
+                .map(|r| r[0] as usize / 1000)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(split("training"), [1, 2, 4, 5, 7, 8, 10]);
+        assert_eq!(split("held_out"), [3, 6, 9]);
+        let text = test_table().replace(
+            "[transport.randomization.package]",
+            "[transport.randomization.held_out_draws]\nevery = 3\nrows = \"training\"\n\n\
+             [transport.randomization.package]",
+        );
+        let err = TransportConfig::from_toml_str(&text, "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("randomization.held_out_draws") && err.contains("posterior"),
+            "{err}"
+        );
+    }
 
     #[test]
     fn a_posterior_of_the_scene_s_calibration_is_loaded_from_its_folder_or_files() {

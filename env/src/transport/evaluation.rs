@@ -13,11 +13,12 @@ use std::sync::Arc;
 use rlpkg_mocap::{Dataset, Split};
 use serde::Serialize;
 
+use super::governor::VacuumGovernor;
 use super::optimize_output::OptimizedCommand;
 use super::{
-    load_paths, load_scene, recorded_timings, run_traced_episodes, EpisodeTable, MotionLimits,
-    OutcomeSummary, PathProfile, TiltSchedule, TracePoint, Transport, TransportConfig,
-    TransportPath,
+    load_paths, load_scene, recorded_timings, run_traced_episodes, spec_of, EpisodeTable,
+    MotionLimits, OutcomeSummary, PathProfile, TiltSchedule, TracePoint, Transport,
+    TransportConfig, TransportPath,
 };
 use crate::{EnvError, VecEnv};
 
@@ -82,6 +83,8 @@ pub struct EvaluationSettings {
     pub profile: Vec<f64>,
     /// Open-loop commands of `rlpkg optimize` outputs, each played from every episode's start.
     pub optimized: Vec<OptimizedCommand>,
+    /// Vacuum governors of the task's own plan ([`VacuumGovernor`]; `0:0` is the plan at rate 1).
+    pub governors: Vec<VacuumGovernor>,
     /// Velocity levels (`low`, `medium`, `high`) of the recorded baselines.
     pub recorded: Vec<String>,
     /// Recordings on whose own conditions the policy is also evaluated.
@@ -212,6 +215,12 @@ pub fn evaluate_policy(
         .map(|velocity| recorded_timings(transport, velocity, source).map(|t| (velocity, t)))
         .collect::<Result<Vec<_>, _>>()
         .map_err(RunError::input)?;
+    let governor_columns = if settings.governors.is_empty() {
+        Vec::new()
+    } else {
+        let spec = spec_of(transport, source).map_err(RunError::input)?;
+        VacuumGovernor::vacuum_columns(transport, &spec, source)?
+    };
     let mut rows = Vec::new();
     let mut first_episode: Vec<(String, Vec<TracePoint>)> = Vec::new();
     let mut env = Transport::new(transport.clone(), episodes, source).map_err(RunError::input)?;
@@ -262,6 +271,18 @@ pub fn evaluate_policy(
         })?;
         rows.push(OutcomeSummary::of(&command.driver, &outcomes));
         table.add(&command.driver, &env, &outcomes);
+    }
+    for governor in &settings.governors {
+        // The policy's own pipeline (plan, delays, sensors), not the baselines' path speeds.
+        let mut env =
+            Transport::new(transport.clone(), episodes, source).map_err(RunError::input)?;
+        let (outcomes, _) = run_traced_episodes::<RunError>(&mut env, seed, &[], |env, obs| {
+            check(stop)?;
+            Ok(governor.actions(env, obs, &governor_columns))
+        })?;
+        let driver = governor.label();
+        rows.push(OutcomeSummary::of(&driver, &outcomes));
+        table.add(&driver, &env, &outcomes);
     }
     let mut recorded = Vec::new();
     for (velocity, timings) in recorded_levels {
@@ -464,6 +485,7 @@ mod tests {
             scripted: vec![1.25],
             profile: Vec::new(),
             optimized: Vec::new(),
+            governors: Vec::new(),
             recorded: recorded.iter().map(|v| v.to_string()).collect(),
             trajectories: None,
         }
@@ -508,6 +530,40 @@ mod tests {
         );
         // One header, then one line per driver and episode.
         assert_eq!(found.episodes.csv().lines().count(), 1 + 3);
+    }
+
+    #[test]
+    fn governors_play_the_tasks_own_plan_and_need_its_sensors() {
+        let with_plan = |table: String| {
+            config(
+                &(table
+                    + "\n[transport.profile_rate]\nlimits_scale = 1.0\nmax_rate = 1.0\n\
+                       max_rate_change_per_s = 4.0\n"),
+            )
+        };
+        let mut settings = settings(&[]);
+        settings.scripted.clear();
+        settings.governors = vec![VacuumGovernor::PLAN, "0.9:0.7".parse().unwrap()];
+        let transport = with_plan(crate::transport::test_support::sensors_table());
+        let found =
+            evaluate_policy(&transport, "test.toml", &settings, &steady, &|| false).unwrap();
+        let drivers: Vec<&str> = found
+            .report
+            .rows
+            .iter()
+            .map(|r| r.driver.as_str())
+            .collect();
+        assert_eq!(drivers, ["policy", "plan x1", "governor 0.9:0.7"]);
+        // Without sensors there is nothing to govern on: refused before any episode.
+        let transport = with_plan(test_table());
+        let err = evaluate_policy(&transport, "test.toml", &settings, &steady, &|| -> bool {
+            panic!("no episode may start")
+        })
+        .unwrap_err();
+        assert!(
+            matches!(&err, RunError::Input(m) if m.contains("test.toml") && m.contains("sensors")),
+            "{err}"
+        );
     }
 
     #[test]

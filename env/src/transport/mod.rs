@@ -67,6 +67,7 @@ mod control;
 mod episode;
 mod evaluation;
 mod geometry;
+mod governor;
 mod mpc;
 mod observe;
 mod optimize;
@@ -88,8 +89,9 @@ use rand_chacha::ChaCha8Rng;
 use rlpkg_sim::{CupLoad, EnvObservation, HealthEvent, Model, SceneConfig, SealEvent, Simulator};
 
 pub use config::{
-    load_scene, FailureLimits, FailureReplay, ObservationMode, ProfileRateAction, RewardWeights,
-    SuccessTolerances, TransportConfig, TransportLimits, TransportRandomization, LIMIT_HEADROOM,
+    load_scene, DrawRows, FailureLimits, FailureReplay, HeldOutDraws, ObservationMode,
+    ProfileRateAction, RewardWeights, SuccessTolerances, TransportConfig, TransportLimits,
+    TransportRandomization, LIMIT_HEADROOM,
 };
 pub use control::TiltSchedule;
 pub use episode::{replaced_packages_line, EpisodeConditions};
@@ -98,6 +100,7 @@ pub use evaluation::{
     ProfileBaseline, RecordedBaseline, RecordingComparison, RecordingSet, RunError, Snapshot,
     TransportEvaluation,
 };
+pub use governor::VacuumGovernor;
 pub use mpc::{control_packages, HorizonSearch, RecedingHorizon};
 pub use observe::{
     critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS, WRIST_OBSERVATIONS,
@@ -122,8 +125,8 @@ pub use profile::{
 pub use recordings::{load_paths, recorded_timings};
 pub use reward::{info_names, Failure, RewardTerms, StepOutcome, REWARD_TERM_NAMES};
 pub use sensors::{
-    cup_vacuum_pa, DelayLine, SensorConfig, SensorNoise, LEAK_LOAD, LEAK_OPEN, LEAK_PEELED,
-    LEAK_SEALED, MAX_DELAY_STEPS,
+    cup_vacuum_pa, CupSeal, DelayLine, SensorConfig, SensorNoise, VacuumDynamics, LEAK_LOAD,
+    LEAK_OPEN, LEAK_PEELED, LEAK_SEALED, MAX_DELAY_STEPS,
 };
 
 use crate::{env_rng, EnvError, EnvSpec, EnvState, StepBuffers, VecEnv};
@@ -237,7 +240,7 @@ impl Transport {
         let dt = substeps_per_step as f64 * sim.dt() as f64;
         let info_names = info_names();
         let sensors = match (&config.observation, &config.sensors) {
-            (ObservationMode::Sensors, Some(c)) => Some(Sensors::new(c.clone(), num_envs)),
+            (ObservationMode::Sensors, Some(c)) => Some(Sensors::new(c.clone(), num_envs, dt)),
             _ => None,
         };
         let wrist = sensors
@@ -297,6 +300,12 @@ impl Transport {
         self.profile_rate = None;
         self.plans.fill(None);
         self.tilt_schedule = TiltSchedule::Recorded;
+    }
+
+    /// The supply vacuum (Pa below ambient) the cell's gauge reads for copy `env`'s episode;
+    /// `None` without sensors.
+    pub fn supply_vacuum_pa(&self, env: usize) -> Option<f64> {
+        self.sensors.as_ref().map(|s| s.copies[env].supply_pa)
     }
 
     /// The simulator the copies run on (particle positions, the disc, ... for pictures).

@@ -6,7 +6,7 @@ use rlpkg_sim::Model;
 
 use super::config::ObservationMode;
 use super::geometry::{quat, rotation_between, v3};
-use super::sensors::{cup_vacuum_pa, row, Reading};
+use super::sensors::{row, CupSeal, Reading};
 use super::{load_scene, sim_error, Transport, TransportConfig, ID};
 use crate::{EnvError, EnvSpec, Space, SpaceKind, StepBuffers};
 
@@ -316,8 +316,8 @@ impl Transport {
         write(critic, &full);
     }
 
-    /// Copy `env`'s sensor readings now, before noise, for supply vacuum `supply_pa`.
-    fn reading(&self, env: usize, supply_pa: f64, wrist: bool) -> Reading {
+    /// Copy `env`'s sensor readings now, before noise and the cell's vacuum response.
+    fn reading(&self, env: usize, wrist: bool) -> Reading {
         let state = &self.states[env];
         let cups = self.model.num_cups();
         let loads = &self.loads[env * cups..(env + 1) * cups];
@@ -348,15 +348,12 @@ impl Transport {
             orientation: q.to_array(),
             velocity: f64s(state.tool_velocity),
             angular_velocity: f64s(state.tool_angular_velocity),
-            vacuum_pa: loads
+            cups: loads
                 .iter()
-                .map(|c| {
-                    cup_vacuum_pa(
-                        supply_pa,
-                        c.attached,
-                        c.sealed_fraction as f64,
-                        c.utilisation as f64,
-                    )
+                .map(|c| CupSeal {
+                    attached: c.attached,
+                    sealed_fraction: c.sealed_fraction as f64,
+                    utilisation: c.utilisation as f64,
                 })
                 .collect(),
             wrench,
@@ -375,9 +372,7 @@ impl Transport {
             let kpa = self.sim.spec(env).vacuum_kpa;
             1e3 * kpa.unwrap_or(self.model.config.seal.vacuum_kpa) as f64
         });
-        sensors.start_episode(env, package_supply_pa, |supply| {
-            self.reading(env, supply, wrist)
-        });
+        sensors.start_episode(env, package_supply_pa, &self.reading(env, wrist));
         self.sensors = Some(sensors);
     }
 
@@ -389,7 +384,7 @@ impl Transport {
         let wrist = sensors.config.wrist_force_torque;
         for env in 0..self.episodes.len() {
             if !self.retired[env] {
-                let reading = self.reading(env, sensors.copies[env].supply_pa, wrist);
+                let reading = self.reading(env, wrist);
                 sensors.measure(env, &reading);
             }
         }

@@ -174,11 +174,18 @@ impl OptimizeConfig {
         for (key, v) in [
             ("knots.initial_speed_m_s", k.initial_speed_m_s),
             ("knots.speed_std_m_s", k.speed_std_m_s),
-            ("knots.tilt_std_deg", k.tilt_std_deg),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return fail(key, v.to_string(), ">= 0");
             }
+        }
+        // The tilt offset's knots live within +-90 degrees; a wider spread is a typo.
+        if !(k.tilt_std_deg.is_finite() && (0.0..=90.0).contains(&k.tilt_std_deg)) {
+            return fail(
+                "knots.tilt_std_deg",
+                k.tilt_std_deg.to_string(),
+                "in [0, 90] (degrees)",
+            );
         }
         for (key, v) in [("risk.quantile", r.quantile), ("risk.weight", r.weight)] {
             if !(0.0..=1.0).contains(&v) {
@@ -220,26 +227,34 @@ impl OptimizeConfig {
         Ok(())
     }
 
-    /// The task of the config's `transport` file (`path` is the config's own file), and that
-    /// file's name as the task's source; the search's starting speed must be within the task's
-    /// limit (beyond it, it would be clamped without a word).
+    /// The task of the config's `transport` file (`path` is the config's own file; a relative
+    /// `transport` is found as every config's relative paths are, [`rlpkg_toml_input::find_relative`],
+    /// and so are the scene and files that file names), and that file's name as the task's source.
+    /// The search's starting speed and its spread must be within the task's limit (beyond it, the
+    /// first would be clamped without a word and the second would draw mostly clamped knots).
     pub fn load_task(&self, path: &Path) -> Result<(TransportConfig, String), RunError> {
-        let source = self.transport.display().to_string();
-        let text = std::fs::read_to_string(&self.transport).map_err(|e| {
-            RunError::Input(format!(
-                "{source}: cannot read (`transport` of {}): {e}",
-                path.display()
-            ))
-        })?;
-        let transport = TransportConfig::from_toml_str(&text, &source).map_err(RunError::input)?;
-        let limit = transport.limits.max_path_speed_m_s;
-        if self.knots.initial_speed_m_s > limit {
+        let file = rlpkg_toml_input::find_relative(&self.transport, path);
+        let source = file.display().to_string();
+        if !file.is_file() {
             return Err(RunError::Input(format!(
-                "{}: knots.initial_speed_m_s = {}: expected at most the task's \
-                 limits.max_path_speed_m_s = {limit} m/s ({source})",
+                "{}: transport = {:?}: expected a training config file with a [transport] table                  (found neither from the working folder nor from the config's folder upwards)",
                 path.display(),
-                self.knots.initial_speed_m_s
+                self.transport.display().to_string()
             )));
+        }
+        let transport = crate::tasks::read_transport_config(&file).map_err(RunError::input)?;
+        let limit = transport.limits.max_path_speed_m_s;
+        for (key, value) in [
+            ("knots.initial_speed_m_s", self.knots.initial_speed_m_s),
+            ("knots.speed_std_m_s", self.knots.speed_std_m_s),
+        ] {
+            if value > limit {
+                return Err(RunError::Input(format!(
+                    "{}: {key} = {value}: expected at most the task's \
+                     limits.max_path_speed_m_s = {limit} m/s ({source})",
+                    path.display(),
+                )));
+            }
         }
         Ok((transport, source))
     }
@@ -293,5 +308,23 @@ impl OptimizeConfig {
             smoothing: self.cem.smoothing,
             seed: self.cem.seed,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_config_finds_its_task_from_any_working_folder() {
+        // The test runs in this crate's folder; the config names its task relative to the
+        // repository, found from the config's folder upwards as every config's paths are.
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+        let path = root.join("configs/optimize/transport.toml");
+        let config = OptimizeConfig::load(&path).unwrap();
+        assert!(!config.transport.exists(), "run from the repository root");
+        let (task, source) = config.load_task(&path).unwrap();
+        assert!(Path::new(&source).is_absolute(), "{source}");
+        assert!(Path::new(&task.scene).is_absolute(), "{}", task.scene);
     }
 }

@@ -51,6 +51,9 @@ pub struct EpisodeOutcome {
     pub object_motion_m: f64,
     /// Largest seal utilisation (load / capacity) of any cup at any control step.
     pub peak_seal_utilisation: f64,
+    /// The tool's angular jerk, mean over the episode's control steps of the change of its
+    /// angular acceleration per step over the step (rad/s^3): what a wobbling tool costs.
+    pub angular_jerk_rad_s3: f64,
     /// Settled package (variant) the episode started from.
     pub package: usize,
 }
@@ -138,6 +141,7 @@ pub fn run_traced_episodes<E: From<EnvError>>(
             episode_return: 0.0,
             object_motion_m: 0.0,
             peak_seal_utilisation: 0.0,
+            angular_jerk_rad_s3: 0.0,
             package: 0,
         };
         n
@@ -145,6 +149,12 @@ pub fn run_traced_episodes<E: From<EnvError>>(
     for (copy, o) in running.iter_mut().enumerate() {
         o.package = env.episodes[copy].variant;
     }
+    // Each copy's tool angular velocity and acceleration at the last step, and its jerk summed.
+    let angular_velocity =
+        |env: &Transport, copy: usize| v3(env.states[copy].tool_angular_velocity);
+    let mut last_velocity: Vec<DVec3> = (0..n).map(|c| angular_velocity(env, c)).collect();
+    let mut last_accel = vec![DVec3::ZERO; n];
+    let mut jerk_sum = vec![0.0; n];
     while outcomes.iter().any(Option::is_none) {
         let actions = act(env, &buffers.obs)?;
         env.step(&actions, &mut buffers)?;
@@ -159,12 +169,17 @@ pub fn run_traced_episodes<E: From<EnvError>>(
                 continue;
             }
             let row = &info[copy * width..(copy + 1) * width];
+            let velocity = angular_velocity(env, copy);
+            let accel = (velocity - last_velocity[copy]) / dt;
+            jerk_sum[copy] += (accel - last_accel[copy]).length() / dt;
+            (last_velocity[copy], last_accel[copy]) = (velocity, accel);
             let o = &mut running[copy];
             o.time_s += dt;
             o.episode_return += buffers.rewards[copy] as f64;
             o.object_motion_m += row[motion] as f64;
             o.peak_seal_utilisation = o.peak_seal_utilisation.max(row[seal] as f64);
             if buffers.done(copy) {
+                o.angular_jerk_rad_s3 = jerk_sum[copy] / (o.time_s / dt).round().max(1.0);
                 o.ending = if row[success] > 0.5 {
                     Ending::Success
                 } else if row[detached] > 0.5 {
@@ -213,6 +228,8 @@ pub struct OutcomeSummary {
     pub peak_seal_mean: f64,
     /// Largest seal utilisation seen.
     pub peak_seal_max: f64,
+    /// Mean over episodes of the tool's angular jerk (rad/s^3, [`EpisodeOutcome`]).
+    pub angular_jerk_mean_rad_s3: f64,
     /// Mean undiscounted return.
     pub mean_return: f64,
     /// Settled packages the episodes started from.
@@ -262,6 +279,7 @@ impl OutcomeSummary {
             object_motion_max_m: max(&mut outcomes.iter().map(|o| o.object_motion_m)),
             peak_seal_mean: mean(&mut outcomes.iter().map(|o| o.peak_seal_utilisation)),
             peak_seal_max: max(&mut outcomes.iter().map(|o| o.peak_seal_utilisation)),
+            angular_jerk_mean_rad_s3: mean(&mut outcomes.iter().map(|o| o.angular_jerk_rad_s3)),
             mean_return: mean(&mut outcomes.iter().map(|o| o.episode_return)),
             packages: per_package.len(),
             package_success_p10_pct: percentile(&per_package, 0.10).unwrap_or(0.0),
@@ -272,14 +290,14 @@ impl OutcomeSummary {
     pub fn table(rows: &[Self]) -> String {
         let opt = |x: Option<f64>| x.map_or_else(|| "-".to_string(), |t| format!("{t:.2}"));
         let mut s = format!(
-            "{:<16} {:>5} {:>7} {:>7} {:>7} {:>7} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6} {:>6} {:>8} {:>5} {:>8}\n",
+            "{:<16} {:>5} {:>7} {:>7} {:>7} {:>7} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6} {:>6} {:>9} {:>8} {:>5} {:>8}\n",
             "driver", "eps", "succ%", "cup%", "drop%", "unh%", "tout%", "place s", "p95 s",
-            "obj mean", "obj max", "seal", "seal^", "return", "pkgs", "pkg p10%"
+            "obj mean", "obj max", "seal", "seal^", "ang jerk", "return", "pkgs", "pkg p10%"
         );
         for r in rows {
             s += &format!(
                 "{:<16} {:>5} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>9} {:>8} {:>8.3}m {:>8.3}m \
-                 {:>6.2} {:>6.2} {:>8.2} {:>5} {:>8.1}\n",
+                 {:>6.2} {:>6.2} {:>9.1} {:>8.2} {:>5} {:>8.1}\n",
                 r.driver,
                 r.episodes,
                 r.success_pct,
@@ -293,6 +311,7 @@ impl OutcomeSummary {
                 r.object_motion_max_m,
                 r.peak_seal_mean,
                 r.peak_seal_max,
+                r.angular_jerk_mean_rad_s3,
                 r.mean_return,
                 r.packages,
                 r.package_success_p10_pct
@@ -320,7 +339,8 @@ impl Default for EpisodeTable {
         Self {
             csv: format!(
                 "driver,episode,package,path,target_tilt_deg,object_mass_kg,vacuum_kpa,{params},\
-                 grasp_vacuum_ratio,ending,time_s,object_motion_m,peak_seal_utilisation\n"
+                 grasp_vacuum_ratio,ending,time_s,object_motion_m,peak_seal_utilisation,\
+                 angular_jerk_rad_s3\n"
             ),
         }
     }
@@ -341,7 +361,7 @@ impl EpisodeTable {
                 .entries()
                 .map(|(_, value, ..)| value.to_string());
             self.csv += &format!(
-                "{driver},{episode},{},{},{:.3},{},{},{},{},{},{:.4},{:.6},{:.6}\n",
+                "{driver},{episode},{},{},{:.3},{},{},{},{},{},{:.4},{:.6},{:.6},{:.3}\n",
                 o.package,
                 drawn.path_id,
                 drawn.target_tilt_rad.to_degrees(),
@@ -355,6 +375,7 @@ impl EpisodeTable {
                 o.time_s,
                 o.object_motion_m,
                 o.peak_seal_utilisation,
+                o.angular_jerk_rad_s3,
             );
         }
     }
@@ -386,6 +407,7 @@ mod tests {
             episode_return: 1.0,
             object_motion_m: motion,
             peak_seal_utilisation: motion,
+            angular_jerk_rad_s3: 0.0,
             package: 0,
         }
     }
@@ -476,6 +498,21 @@ mod tests {
         let summary = OutcomeSummary::of("still", &outcomes);
         assert_eq!(summary.timed_out_pct, 100.0);
         assert_eq!(summary.time_to_place_mean_s, None);
+        // A tool whose tilt offset flips every step has far more angular jerk than one held still.
+        let mut step = 0;
+        let wobbling = run_episodes::<EnvError>(&mut t, 5, |t, _| {
+            step += 1;
+            let tilt = if step % 2 == 0 { 0.3 } else { -0.3 };
+            Ok([0.0, tilt, 0.0].repeat(t.num_envs()))
+        })
+        .unwrap();
+        for (still, wobbling) in outcomes.iter().zip(&wobbling) {
+            assert!(
+                wobbling.angular_jerk_rad_s3 > 10.0 * still.angular_jerk_rad_s3
+                    && wobbling.angular_jerk_rad_s3 > 10.0,
+                "{still:?} {wobbling:?}"
+            );
+        }
 
         // episodes.csv: a header, then each copy's draw and ending in its own row.
         let mut table = EpisodeTable::default();

@@ -35,8 +35,19 @@
 //! toward ambient) monotonically as the seal is peeled or sheared. The ratios are dimensionless
 //! ([`LEAK_SEALED`], [`LEAK_PEELED`], [`LEAK_LOAD`], [`LEAK_OPEN`]): a sound seal holds 98 % of
 //! the supply vacuum, one at its failure load about 75 %, a fully peeled lip 20 % and an open cup
-//! 2 %. The pneumatic response is taken as instantaneous within a control step (its time constant,
-//! tens of milliseconds, is covered by the observation delay).
+//! 2 %. Without `[transport.sensors.vacuum]` the load term is [`LEAK_LOAD`] in every cell and the
+//! pneumatic response is taken as instantaneous within a control step.
+//!
+//! # Cell-to-cell vacuum dynamics (`[transport.sensors.vacuum]`)
+//! A lip that holds its seal leaks little however hard it is loaded; what moves a real cup's
+//! vacuum is air let in where the lip lifts. How much the load alone adds is a property of the cup
+//! and the film that nothing here measures, so with this table it is drawn per episode from
+//! `load_leak` (e.g. `[0, 0.31]`: down to zero, where the reading carries no trace of the seal's
+//! load and only the peeled or detached lip moves it). The cup's volume behind the lip fills
+//! through the supply's conductance, a first-order lag: each control step of `Δt` the held vacuum
+//! moves `1 − exp(−Δt/τ)` of the way to the balance above, `τ` drawn per episode from
+//! `time_constant_s`; the supply fluctuates by `supply_noise_pa` per step, common to every cup,
+//! before the transducer's own noise.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -72,6 +83,28 @@ pub struct SensorConfig {
     pub action_delay_steps: [usize; 2],
     /// Standard deviations of the readings' noise.
     pub noise: SensorNoise,
+    /// The cell's vacuum dynamics, drawn per episode (optional; without it the load term is
+    /// [`LEAK_LOAD`] and the response instantaneous).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vacuum: Option<VacuumDynamics>,
+}
+
+/// `[transport.sensors.vacuum]`: what differs between cells in how a cup's vacuum responds.
+/// Every range is `[low, high]`, uniform per episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VacuumDynamics {
+    /// Leak ratio added per unit of the cup's utilisation (assumption: no cup here was measured;
+    /// [`LEAK_LOAD`] is the value without this table), within [0, 1].
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
+    pub load_leak: [f64; 2],
+    /// Time constant of the cup's pneumatic response (s), within [0, 1] (assumption: tens of
+    /// milliseconds for a small bellows cup on a short hose; 0 is instantaneous).
+    #[serde(deserialize_with = "rlpkg_toml_input::array")]
+    pub time_constant_s: [f64; 2],
+    /// Standard deviation of the supply vacuum's fluctuation per control step, common to every
+    /// cup (Pa), within [0, 5000].
+    pub supply_noise_pa: f64,
 }
 
 /// Standard deviation of each sensor's zero-mean Gaussian noise (SI, per component).
@@ -106,14 +139,38 @@ pub fn cup_vacuum_pa(
     sealed_fraction: f64,
     utilisation: f64,
 ) -> f64 {
-    let leak = if attached {
-        LEAK_SEALED
-            + LEAK_PEELED * (1.0 - sealed_fraction.clamp(0.0, 1.0))
-            + LEAK_LOAD * utilisation.max(0.0)
-    } else {
-        LEAK_OPEN
+    let seal = CupSeal {
+        attached,
+        sealed_fraction,
+        utilisation,
     };
-    supply_pa / (1.0 + leak)
+    seal.vacuum_pa(supply_pa, LEAK_LOAD)
+}
+
+/// What a cup's vacuum depends on: the simulator's state of its seal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CupSeal {
+    /// Whether the cup holds the film.
+    pub attached: bool,
+    /// Fraction of the lip still sealed.
+    pub sealed_fraction: f64,
+    /// The seal's load over its limit (1 at failure).
+    pub utilisation: f64,
+}
+
+impl CupSeal {
+    /// The vacuum (Pa below ambient) the cup holds at balance for supply vacuum `supply_pa` and
+    /// the load term `load_leak` (leak ratio per unit of utilisation).
+    pub fn vacuum_pa(&self, supply_pa: f64, load_leak: f64) -> f64 {
+        let leak = if self.attached {
+            LEAK_SEALED
+                + LEAK_PEELED * (1.0 - self.sealed_fraction.clamp(0.0, 1.0))
+                + load_leak * self.utilisation.max(0.0)
+        } else {
+            LEAK_OPEN
+        };
+        supply_pa / (1.0 + leak)
+    }
 }
 
 /// A fixed delay of `delay` steps for rows of `width` numbers: what is pushed comes out exactly
@@ -161,6 +218,12 @@ pub(super) struct CopySensors {
     rng: [u64; RNG_WORDS],
     /// Supply vacuum of the episode (Pa below ambient).
     pub(super) supply_pa: f64,
+    /// Leak ratio per unit of utilisation in this episode's cell.
+    load_leak: f64,
+    /// Time constant of the cups' pneumatic response in this episode's cell (s).
+    time_constant_s: f64,
+    /// Each cup's vacuum now (Pa below ambient), before the transducer's noise.
+    cup_vacuum_pa: Vec<f64>,
     /// Readings on their way to the policy.
     pub(super) readings: DelayLine,
     /// Actions on their way to the robot.
@@ -173,7 +236,7 @@ pub(super) struct Reading {
     pub(super) orientation: [f64; 4],
     pub(super) velocity: [f64; 3],
     pub(super) angular_velocity: [f64; 3],
-    pub(super) vacuum_pa: Vec<f64>,
+    pub(super) cups: Vec<CupSeal>,
     /// Force then torque, tool frame (empty without a wrist sensor).
     pub(super) wrench: Vec<f64>,
 }
@@ -197,6 +260,8 @@ pub(super) mod row {
 pub(super) struct Sensors {
     pub(super) config: SensorConfig,
     pub(super) copies: Vec<CopySensors>,
+    /// The control step (s): the interval between two readings.
+    step_s: f64,
 }
 
 /// The sensor stream of copy `env` for a reset with `seed` (apart from the copy's episode
@@ -205,6 +270,15 @@ fn sensor_rng(seed: u64, env: usize) -> ChaCha8Rng {
     let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_add(env as u64));
     rng.set_stream(2 << 32);
     rng
+}
+
+/// Uniform in `[lo, hi]`.
+fn uniform(rng: &mut ChaCha8Rng, [lo, hi]: [f64; 2]) -> f64 {
+    if lo < hi {
+        rng.random_range(lo..=hi)
+    } else {
+        lo
+    }
 }
 
 /// Uniform integer in `[lo, hi]`.
@@ -217,17 +291,22 @@ fn uniform_steps(rng: &mut ChaCha8Rng, [lo, hi]: [usize; 2]) -> usize {
 }
 
 impl Sensors {
-    /// Sensors of `num_envs` copies (streams set by [`Sensors::reseed`]).
-    pub(super) fn new(config: SensorConfig, num_envs: usize) -> Self {
+    /// Sensors of `num_envs` copies read every `step_s` seconds (streams set by
+    /// [`Sensors::reseed`]).
+    pub(super) fn new(config: SensorConfig, num_envs: usize, step_s: f64) -> Self {
         let copy = CopySensors {
             rng: rng_to_words(&sensor_rng(0, 0)),
             supply_pa: 0.0,
+            load_leak: LEAK_LOAD,
+            time_constant_s: 0.0,
+            cup_vacuum_pa: Vec::new(),
             readings: DelayLine::filled(&[], 0),
             actions: DelayLine::filled(&[0.0; 3], 0),
         };
         Self {
             config,
             copies: vec![copy; num_envs],
+            step_s,
         }
     }
 
@@ -238,14 +317,14 @@ impl Sensors {
         }
     }
 
-    /// The noisy reading row of `reading`, drawn from `rng`.
-    fn noisy_row(&self, rng: &mut ChaCha8Rng, reading: &Reading) -> Vec<f64> {
+    /// The noisy reading row of `reading` with the cups holding `vacuum_pa`, drawn from `rng`.
+    fn noisy_row(&self, rng: &mut ChaCha8Rng, reading: &Reading, vacuum_pa: &[f64]) -> Vec<f64> {
         let n = &self.config.noise;
         let mut gauss = |sigma: f64| -> f64 {
             let z: f64 = StandardNormal.sample(rng);
             sigma * z
         };
-        let mut row = Vec::with_capacity(row::CUPS + reading.vacuum_pa.len() + 6);
+        let mut row = Vec::with_capacity(row::CUPS + vacuum_pa.len() + 6);
         row.extend(reading.position.map(|x| x + gauss(n.position_m)));
         let turn = glam::DVec3::new(
             gauss(n.orientation_rad),
@@ -261,7 +340,7 @@ impl Sensors {
                 .angular_velocity
                 .map(|x| x + gauss(n.angular_velocity_rad_s)),
         );
-        row.extend(reading.vacuum_pa.iter().map(|&p| -p + gauss(n.vacuum_pa)));
+        row.extend(vacuum_pa.iter().map(|&p| -p + gauss(n.vacuum_pa)));
         for (k, &w) in reading.wrench.iter().enumerate() {
             let sigma = if k < 3 { n.force_n } else { n.torque_n_m };
             row.push(w + gauss(sigma));
@@ -270,13 +349,13 @@ impl Sensors {
     }
 
     /// Starts copy `env`'s episode: draws its supply vacuum (unless the package's seal has its
-    /// own, `package_supply_pa`, which the sensors then read) and delays, and fills its delay
-    /// lines with the first reading (`reading` taken with the supply vacuum) and the hold action.
+    /// own, `package_supply_pa`, which the sensors then read), delays and cell, and fills its
+    /// delay lines with the first reading (the cups at balance) and the hold action.
     pub(super) fn start_episode(
         &mut self,
         env: usize,
         package_supply_pa: Option<f64>,
-        reading: impl FnOnce(f64) -> Reading,
+        reading: &Reading,
     ) {
         let mut rng = rng_from_words(&self.copies[env].rng);
         let [lo, hi] = self.config.supply_vacuum_kpa;
@@ -287,21 +366,57 @@ impl Sensors {
         };
         let observation_delay = uniform_steps(&mut rng, self.config.observation_delay_steps);
         let action_delay = uniform_steps(&mut rng, self.config.action_delay_steps);
-        let row = self.noisy_row(&mut rng, &reading(supply_pa));
+        // Drawn only with the table, so that a config without it keeps its streams.
+        let (load_leak, time_constant_s) = match &self.config.vacuum {
+            Some(v) => (
+                uniform(&mut rng, v.load_leak),
+                uniform(&mut rng, v.time_constant_s),
+            ),
+            None => (LEAK_LOAD, 0.0),
+        };
+        let cup_vacuum_pa: Vec<f64> = reading
+            .cups
+            .iter()
+            .map(|c| c.vacuum_pa(supply_pa, load_leak))
+            .collect();
+        let row = self.noisy_row(&mut rng, reading, &cup_vacuum_pa);
         self.copies[env] = CopySensors {
             rng: rng_to_words(&rng),
             supply_pa,
+            load_leak,
+            time_constant_s,
+            cup_vacuum_pa,
             readings: DelayLine::filled(&row, observation_delay),
             actions: DelayLine::filled(&[0.0; 3], action_delay),
         };
     }
 
-    /// Takes copy `env`'s reading of this control step.
+    /// Takes copy `env`'s reading of this control step: each cup's vacuum moves toward its
+    /// balance under the supply of this step (with its fluctuation) by the cell's lag.
     pub(super) fn measure(&mut self, env: usize, reading: &Reading) {
         let mut rng = rng_from_words(&self.copies[env].rng);
-        let row = self.noisy_row(&mut rng, reading);
+        let copy = &self.copies[env];
+        let mut supply_pa = copy.supply_pa;
+        if let Some(v) = &self.config.vacuum {
+            let z: f64 = StandardNormal.sample(&mut rng);
+            supply_pa += v.supply_noise_pa * z;
+        }
+        // The exact step of a first-order lag over one control step; none without a lag.
+        let follow =
+            (copy.time_constant_s > 0.0).then(|| 1.0 - (-self.step_s / copy.time_constant_s).exp());
+        let cup_vacuum_pa: Vec<f64> = reading
+            .cups
+            .iter()
+            .zip(&copy.cup_vacuum_pa)
+            .map(|(c, &now)| {
+                let balance = c.vacuum_pa(supply_pa, copy.load_leak);
+                follow.map_or(balance, |k| now + k * (balance - now))
+            })
+            .collect();
+        let row = self.noisy_row(&mut rng, reading, &cup_vacuum_pa);
         let copy = &mut self.copies[env];
         copy.rng = rng_to_words(&rng);
+        copy.cup_vacuum_pa = cup_vacuum_pa;
         copy.readings.push(&row);
     }
 
@@ -380,26 +495,143 @@ mod tests {
                 velocity_m_s: 1e-2,
                 angular_velocity_rad_s: 1e-2,
             },
+            vacuum: None,
         }
     }
 
-    fn reading(supply_pa: f64) -> Reading {
+    /// A reading with every cup attached, sealed over `sealed_fraction` of its lip and at
+    /// `utilisation`.
+    fn reading_of(sealed_fraction: f64, utilisation: f64) -> Reading {
+        let cup = CupSeal {
+            attached: true,
+            sealed_fraction,
+            utilisation,
+        };
         Reading {
             position: [0.1, 0.2, 0.3],
             orientation: [0.0, 0.0, 0.0, 1.0],
             velocity: [0.0; 3],
             angular_velocity: [0.0; 3],
-            vacuum_pa: vec![cup_vacuum_pa(supply_pa, true, 1.0, 0.2); 4],
+            cups: vec![cup; 4],
             wrench: vec![0.0, -3.0, 0.0, 0.0, 0.0, 0.0],
         }
     }
 
+    fn reading() -> Reading {
+        reading_of(1.0, 0.2)
+    }
+
+    /// A control step of 50 ms.
+    const STEP_S: f64 = 0.05;
+
+    #[test]
+    fn no_reading_depends_on_the_load_when_the_load_term_is_zero() {
+        // Two cells alike but for the load term: the same seeds, the same lip, utilisation 0.1
+        // or 0.9. With the term drawn at zero every row the actor gets is the same; with the
+        // term of the model without the table, the vacuum rows differ.
+        let rows = |vacuum: Option<VacuumDynamics>, utilisation: f64| {
+            let mut sensors = Sensors::new(SensorConfig { vacuum, ..config() }, 2, STEP_S);
+            sensors.reseed(11);
+            let mut out = Vec::new();
+            for env in 0..2 {
+                sensors.start_episode(env, None, &reading_of(0.9, utilisation));
+                for _ in 0..5 {
+                    sensors.measure(env, &reading_of(0.7, utilisation));
+                    out.push(sensors.copies[env].readings.output().to_vec());
+                }
+            }
+            out
+        };
+        let zero = VacuumDynamics {
+            load_leak: [0.0, 0.0],
+            time_constant_s: [0.01, 0.06],
+            supply_noise_pa: 100.0,
+        };
+        assert_eq!(rows(Some(zero.clone()), 0.1), rows(Some(zero), 0.9));
+        assert_ne!(rows(None, 0.1), rows(None, 0.9));
+        let some = VacuumDynamics {
+            load_leak: [0.0, 0.31],
+            time_constant_s: [0.01, 0.06],
+            supply_noise_pa: 100.0,
+        };
+        assert_ne!(rows(Some(some.clone()), 0.1), rows(Some(some), 0.9));
+    }
+
+    #[test]
+    fn the_vacuum_follows_a_step_with_the_cells_time_constant() {
+        // A sealed cup whose lip peels to 40 % at once: its vacuum (before the transducer's
+        // noise) moves to the new balance as 1 - exp(-t / tau), tau 30 ms, read every 50 ms.
+        let tau = 0.03;
+        let lagged = SensorConfig {
+            vacuum: Some(VacuumDynamics {
+                load_leak: [0.0, 0.0],
+                time_constant_s: [tau, tau],
+                supply_noise_pa: 0.0,
+            }),
+            ..config()
+        };
+        let mut sensors = Sensors::new(lagged, 1, STEP_S);
+        sensors.reseed(2);
+        sensors.start_episode(0, Some(25e3), &reading_of(1.0, 0.5));
+        let before = CupSeal {
+            attached: true,
+            sealed_fraction: 1.0,
+            utilisation: 0.0,
+        }
+        .vacuum_pa(25e3, 0.0);
+        let after = CupSeal {
+            attached: true,
+            sealed_fraction: 0.4,
+            utilisation: 0.0,
+        }
+        .vacuum_pa(25e3, 0.0);
+        assert_eq!(sensors.copies[0].cup_vacuum_pa, vec![before; 4]);
+        for k in 1..=6 {
+            sensors.measure(0, &reading_of(0.4, 0.5));
+            let t = k as f64 * STEP_S;
+            let expected = after + (before - after) * (-t / tau).exp();
+            for &held in &sensors.copies[0].cup_vacuum_pa {
+                assert!(
+                    (held - expected).abs() < 1e-6 * before,
+                    "{t} s: {held} {expected}"
+                );
+            }
+        }
+        // Without a lag the vacuum is at its balance at once.
+        let mut sensors = Sensors::new(config(), 1, STEP_S);
+        sensors.start_episode(0, Some(25e3), &reading_of(1.0, 0.0));
+        sensors.measure(0, &reading_of(0.4, 0.0));
+        let at_once = cup_vacuum_pa(25e3, true, 0.4, 0.0);
+        assert_eq!(sensors.copies[0].cup_vacuum_pa, vec![at_once; 4]);
+    }
+
+    #[test]
+    fn each_cell_draws_its_load_term_and_lag_within_their_ranges() {
+        let mut config = config();
+        config.vacuum = Some(VacuumDynamics {
+            load_leak: [0.0, 0.31],
+            time_constant_s: [0.01, 0.06],
+            supply_noise_pa: 0.0,
+        });
+        let mut sensors = Sensors::new(config, 64, STEP_S);
+        sensors.reseed(5);
+        for env in 0..64 {
+            sensors.start_episode(env, None, &reading());
+        }
+        let leaks: Vec<f64> = sensors.copies.iter().map(|c| c.load_leak).collect();
+        let taus: Vec<f64> = sensors.copies.iter().map(|c| c.time_constant_s).collect();
+        assert!(leaks.iter().all(|l| (0.0..=0.31).contains(l)));
+        assert!(taus.iter().all(|t| (0.01..=0.06).contains(t)));
+        assert!(leaks.iter().any(|&l| l < 0.05) && leaks.iter().any(|&l| l > 0.26));
+        assert!(taus.iter().any(|&t| t < 0.02) && taus.iter().any(|&t| t > 0.05));
+    }
+
     #[test]
     fn each_copy_delays_actions_by_its_own_drawn_steps() {
-        let mut sensors = Sensors::new(config(), 16);
+        let mut sensors = Sensors::new(config(), 16, STEP_S);
         sensors.reseed(3);
         for env in 0..16 {
-            sensors.start_episode(env, None, reading);
+            sensors.start_episode(env, None, &reading());
         }
         let delays: Vec<usize> = sensors.copies.iter().map(|c| c.actions.delay()).collect();
         assert!(delays.iter().all(|d| (1..=2).contains(d)));
@@ -425,12 +657,12 @@ mod tests {
     #[test]
     fn noise_follows_the_seed_and_each_copy_its_own_stream() {
         let run = |seed: u64, copies: std::ops::Range<usize>| {
-            let mut sensors = Sensors::new(config(), 4);
+            let mut sensors = Sensors::new(config(), 4, STEP_S);
             sensors.reseed(seed);
             for env in copies {
-                sensors.start_episode(env, None, reading);
+                sensors.start_episode(env, None, &reading());
                 for _ in 0..3 {
-                    sensors.measure(env, &reading(25e3));
+                    sensors.measure(env, &reading());
                 }
             }
             sensors.copies
@@ -444,13 +676,13 @@ mod tests {
         assert_ne!(all[1].readings, all[2].readings);
         assert_ne!(all, run(8, 0..4));
         // The noise has about the configured spread.
-        let mut sensors = Sensors::new(config(), 1);
+        let mut sensors = Sensors::new(config(), 1, STEP_S);
         sensors.reseed(1);
-        sensors.start_episode(0, None, reading);
+        sensors.start_episode(0, Some(25e3), &reading());
         let (mut sum, mut sum2, n) = (0.0, 0.0, 4000);
-        let clean = -reading(25e3).vacuum_pa[0];
+        let clean = -cup_vacuum_pa(25e3, true, 1.0, 0.2);
         for _ in 0..n {
-            sensors.measure(0, &reading(25e3));
+            sensors.measure(0, &reading());
             let newest = sensors.copies[0].readings.rows.last().unwrap()[row::CUPS] - clean;
             sum += newest;
             sum2 += newest * newest;

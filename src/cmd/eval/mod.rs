@@ -18,6 +18,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use rlpkg_agents::TrainedPolicy;
+use rlpkg_env::transport::VacuumGovernor;
 use serde::Serialize;
 
 use crate::error::{agent_error, input_error};
@@ -91,6 +92,17 @@ pub struct EvalArgs {
         conflicts_with = "params"
     )]
     pub optimized: Vec<PathBuf>,
+    /// Transport policies with sensors and a plan: vacuum governors of the task's own plan
+    /// evaluated beside the policy, each FULL:STOP (the plan at rate 1 while the lowest cup holds
+    /// at least FULL of the supply vacuum, stopped at STOP or below, linear between; 0:0 is the
+    /// plan at rate 1), e.g. 0:0,0.9:0.7 [default: none].
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_name = "FULL:STOP",
+        conflicts_with = "params"
+    )]
+    pub governor: Vec<VacuumGovernor>,
     /// Transport policies: velocity levels of the recorded baselines evaluated beside the policy (the
     /// timing of the low, medium or high-velocity recording of the episode's tilt level, played
     /// along the episode's path); `none` for none.
@@ -110,10 +122,11 @@ pub struct EvalArgs {
 }
 
 /// The options (argument ids) that only an evaluation of the transport task reads.
-pub const TRANSPORT_OPTIONS: [&str; 5] = [
+pub const TRANSPORT_OPTIONS: [&str; 6] = [
     "scripted",
     "profile",
     "optimized",
+    "governor",
     "recorded",
     "trajectories",
 ];

@@ -347,7 +347,7 @@ fn sweep(
     let mut rows = Vec::new();
     for between in SWEEP_BETWEEN {
         let mut s = scene.clone();
-        s.package.grid = [6 + 5 * between, 7 + 6 * between];
+        s.package.grid = rlpkg_replay::grid_between_markers(between);
         let model = Arc::new(Model::new(&s).map_err(input_error)?);
         let mut bar = Progress::new(&format!("grid {}x{}", s.package.grid[0], s.package.grid[1]));
         let started = Instant::now();

@@ -152,6 +152,7 @@ fn settings(args: &EvalArgs, episodes: usize) -> anyhow::Result<EvaluationSettin
         scripted: args.scripted.clone(),
         profile: args.profile.clone(),
         optimized,
+        governors: args.governor.clone(),
         recorded,
         trajectories,
     })
