@@ -272,13 +272,14 @@ pub fn evaluate_policy(
         rows.push(OutcomeSummary::of(&command.driver, &outcomes));
         table.add(&command.driver, &env, &outcomes);
     }
+    let max_rate = transport.profile_rate.map_or(1.0, |p| p.max_rate);
     for governor in &settings.governors {
         // The policy's own pipeline (plan, delays, sensors), not the baselines' path speeds.
         let mut env =
             Transport::new(transport.clone(), episodes, source).map_err(RunError::input)?;
         let (outcomes, _) = run_traced_episodes::<RunError>(&mut env, seed, &[], |env, obs| {
             check(stop)?;
-            Ok(governor.actions(env, obs, &governor_columns))
+            Ok(governor.actions(env, obs, &governor_columns, max_rate))
         })?;
         let driver = governor.label();
         rows.push(OutcomeSummary::of(&driver, &outcomes));

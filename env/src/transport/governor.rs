@@ -1,9 +1,10 @@
 //! The vacuum governor: a cell engineer's first closed-loop controller for a suction transport.
 //! It plays the task's own plan (`[transport.profile_rate]`: the same pipeline, delays and
 //! noise a policy has) and sets the plan's clock rate from the lowest cup's vacuum reading as a
-//! fraction of the cell's supply vacuum: full rate while every cup holds at least `full_ratio`,
-//! stopped at `stop_ratio` or below, linear between; the tool's tilt stays the plan's. With both
-//! ratios 0 it is the plan at rate 1, the plan a policy modulates.
+//! fraction of the cell's supply vacuum: the task's largest rate (`max_rate`, the reach a policy
+//! has) while every cup holds at least `full_ratio`, stopped at `stop_ratio` or below, linear
+//! between; the tool's tilt stays the plan's. With both ratios 0 it is the plan at rate 1, the
+//! plan a policy modulates.
 
 use std::fmt;
 use std::str::FromStr;
@@ -28,14 +29,17 @@ impl VacuumGovernor {
         stop_ratio: 0.0,
     };
 
-    /// The plan's clock rate for the lowest cup's vacuum over the supply's.
-    pub fn rate(&self, lowest_ratio: f64) -> f64 {
-        if lowest_ratio >= self.full_ratio {
+    /// The plan's clock rate for the lowest cup's vacuum over the supply's, with `max_rate` the
+    /// task's largest (the plan at rate 1 ignores it).
+    pub fn rate(&self, lowest_ratio: f64, max_rate: f64) -> f64 {
+        if *self == Self::PLAN {
             1.0
+        } else if lowest_ratio >= self.full_ratio {
+            max_rate
         } else if lowest_ratio <= self.stop_ratio {
             0.0
         } else {
-            (lowest_ratio - self.stop_ratio) / (self.full_ratio - self.stop_ratio)
+            max_rate * (lowest_ratio - self.stop_ratio) / (self.full_ratio - self.stop_ratio)
         }
     }
 
@@ -49,8 +53,15 @@ impl VacuumGovernor {
     }
 
     /// The actions of every copy of `env` for the actor observations `obs`: rate from the
-    /// lowest cup's reading (`vacuum_columns` of each row, gauge Pa), no tilt offset.
-    pub fn actions(&self, env: &Transport, obs: &[f32], vacuum_columns: &[usize]) -> Vec<f32> {
+    /// lowest cup's reading (`vacuum_columns` of each row, gauge Pa) up to `max_rate`, no tilt
+    /// offset.
+    pub fn actions(
+        &self,
+        env: &Transport,
+        obs: &[f32],
+        vacuum_columns: &[usize],
+        max_rate: f64,
+    ) -> Vec<f32> {
         let width = obs.len() / env.num_envs().max(1);
         let mut actions = Vec::with_capacity(3 * env.num_envs());
         for (copy, row) in obs.chunks(width).enumerate() {
@@ -59,7 +70,7 @@ impl VacuumGovernor {
                 .iter()
                 .map(|&k| -(row[k] as f64))
                 .fold(f64::INFINITY, f64::min);
-            actions.extend([self.rate(lowest / supply) as f32, 0.0, 0.0]);
+            actions.extend([self.rate(lowest / supply, max_rate) as f32, 0.0, 0.0]);
         }
         actions
     }
@@ -131,15 +142,15 @@ mod tests {
     #[test]
     fn the_rate_falls_from_full_to_stop_with_the_lowest_vacuum() {
         let g: VacuumGovernor = "0.9:0.7".parse().unwrap();
-        assert_eq!(g.rate(0.95), 1.0);
-        assert_eq!(g.rate(0.9), 1.0);
-        assert!((g.rate(0.8) - 0.5).abs() < 1e-12);
-        assert_eq!(g.rate(0.7), 0.0);
-        assert_eq!(g.rate(0.1), 0.0);
+        assert_eq!(g.rate(0.95, 1.5), 1.5);
+        assert_eq!(g.rate(0.9, 1.0), 1.0);
+        assert!((g.rate(0.8, 1.5) - 0.75).abs() < 1e-12);
+        assert_eq!(g.rate(0.7, 1.5), 0.0);
+        assert_eq!(g.rate(0.1, 1.5), 0.0);
         assert_eq!(g.label(), "governor 0.9:0.7");
         let plan: VacuumGovernor = "0:0".parse().unwrap();
         assert_eq!(plan, VacuumGovernor::PLAN);
-        assert_eq!((plan.rate(0.0), plan.rate(0.5)), (1.0, 1.0));
+        assert_eq!((plan.rate(0.0, 1.5), plan.rate(0.5, 1.5)), (1.0, 1.0));
         assert_eq!(plan.label(), "plan x1");
         for bad in ["0.7:0.9", "0.9", "1.5:0.5", "x:0.5", "0.5:0.5", "NaN:0"] {
             let err = bad.parse::<VacuumGovernor>().unwrap_err();

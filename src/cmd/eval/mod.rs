@@ -93,9 +93,9 @@ pub struct EvalArgs {
     )]
     pub optimized: Vec<PathBuf>,
     /// Transport policies with sensors and a plan: vacuum governors of the task's own plan
-    /// evaluated beside the policy, each FULL:STOP (the plan at rate 1 while the lowest cup holds
-    /// at least FULL of the supply vacuum, stopped at STOP or below, linear between; 0:0 is the
-    /// plan at rate 1), e.g. 0:0,0.9:0.7 [default: none].
+    /// evaluated beside the policy, each FULL:STOP (the plan at the task's largest rate while the
+    /// lowest cup holds at least FULL of the supply vacuum, stopped at STOP or below, linear
+    /// between; 0:0 is the plan at rate 1), e.g. 0:0,0.9:0.7 [default: none].
     #[arg(
         long,
         value_delimiter = ',',
