@@ -273,7 +273,7 @@ fn row_dict<'py>(py: Python<'py>, row: &CandidateRow) -> PyResult<Bound<'py, PyD
 fn row_from_python(candidate: usize, row: &Bound<'_, PyAny>) -> PyResult<CandidateRow> {
     let value = |key: &str| -> PyResult<f64> {
         row.get_item(key)
-            .and_then(|v| v.extract::<f64>().map_err(PyErr::from))
+            .and_then(|v| v.extract::<f64>())
             .map_err(|e| {
                 value_error(format!(
                     "row {candidate}: {key}: {e}; expected a dict of numbers with the keys \

@@ -232,7 +232,7 @@ pub enum DrawRows {
 impl HeldOutDraws {
     /// Whether the draw in row `index` (from 0) is held out.
     pub fn is_held_out(&self, index: usize) -> bool {
-        (index + 1) % self.every == 0
+        (index + 1).is_multiple_of(self.every)
     }
 
     /// The rows of `draws` the task uses.

@@ -56,6 +56,9 @@ pub(crate) fn check(stop: &dyn Fn() -> bool) -> Result<(), RunError> {
     }
 }
 
+/// The evaluated policy's actions for `n` rows of actor observations, its errors as [`RunError`]s.
+type Act<'a> = dyn Fn(&[f32], usize) -> Result<Vec<f32>, RunError> + 'a;
+
 /// Deterministic actions of the evaluated policy for `n` rows of actor observations.
 pub type PolicyActions<'a> =
     dyn Fn(&[f32], usize) -> Result<Vec<f32>, Box<dyn std::error::Error + Send + Sync>> + 'a;
@@ -438,7 +441,7 @@ fn film_beside_medium(
     transport: &TransportConfig,
     source: &str,
     seed: u64,
-    act: &dyn Fn(&[f32], usize) -> Result<Vec<f32>, RunError>,
+    act: &Act,
     stop: &dyn Fn() -> bool,
 ) -> Result<EpisodeFilm, RunError> {
     let medium = recorded_timings(transport, "medium", source).map_err(RunError::input)?;
