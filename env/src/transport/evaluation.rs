@@ -482,6 +482,16 @@ mod tests {
         Ok([0.5, 0.0, 0.0].repeat(n))
     }
 
+    /// The drivers of the report's rows, in order.
+    fn drivers(found: &TransportEvaluation) -> Vec<&str> {
+        found
+            .report
+            .rows
+            .iter()
+            .map(|r| r.driver.as_str())
+            .collect()
+    }
+
     fn settings(recorded: &[&str]) -> EvaluationSettings {
         EvaluationSettings {
             episodes: 1,
@@ -506,13 +516,10 @@ mod tests {
             &|| false,
         )
         .unwrap();
-        let drivers: Vec<&str> = found
-            .report
-            .rows
-            .iter()
-            .map(|r| r.driver.as_str())
-            .collect();
-        assert_eq!(drivers, ["policy", "scripted x1.25", "recorded high"]);
+        assert_eq!(
+            drivers(&found),
+            ["policy", "scripted x1.25", "recorded high"]
+        );
         assert!(found.report.rows.iter().all(|r| r.episodes == 1));
         assert_eq!(
             found.report.recorded[0].timings.len(),
@@ -551,13 +558,7 @@ mod tests {
         let transport = with_plan(crate::transport::test_support::sensors_table());
         let found =
             evaluate_policy(&transport, "test.toml", &settings, &steady, &|| false).unwrap();
-        let drivers: Vec<&str> = found
-            .report
-            .rows
-            .iter()
-            .map(|r| r.driver.as_str())
-            .collect();
-        assert_eq!(drivers, ["policy", "plan x1", "governor 0.9:0.7"]);
+        assert_eq!(drivers(&found), ["policy", "plan x1", "governor 0.9:0.7"]);
         // Without sensors there is nothing to govern on: refused before any episode.
         let transport = with_plan(test_table());
         let err = evaluate_policy(&transport, "test.toml", &settings, &steady, &|| -> bool {
