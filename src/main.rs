@@ -106,12 +106,31 @@ enum Command {
 
 /// Lets every option that takes a value take a negative number, so that `--seconds -1` reaches the
 /// option's own check (which names the option and the expected range) instead of being read as an
-/// unknown flag `-1`.
+/// unknown flag `-1`. Options whose values are numbers or grids (and the lists that say so in their
+/// own attributes) take any value that starts with a hyphen (`-inf`, `-nan`, `-5x5`, which clap
+/// does not count as numbers), and their parser names the option; options of paths and names keep
+/// refusing a flag-like value.
 fn negative_numbers_as_values(command: clap::Command) -> clap::Command {
+    use std::any::TypeId;
+    let numeric = [
+        TypeId::of::<f64>(),
+        TypeId::of::<f32>(),
+        TypeId::of::<usize>(),
+        TypeId::of::<u64>(),
+        TypeId::of::<u32>(),
+        TypeId::of::<i64>(),
+        TypeId::of::<i32>(),
+        TypeId::of::<[usize; 2]>(),
+    ];
     command
         .mut_args(|arg| {
-            if arg.get_action().takes_values() {
-                arg.allow_negative_numbers(true)
+            if !arg.get_action().takes_values() {
+                return arg;
+            }
+            let value = arg.get_value_parser().type_id();
+            let arg = arg.allow_negative_numbers(true);
+            if numeric.iter().any(|t| value == *t) {
+                arg.allow_hyphen_values(true)
             } else {
                 arg
             }

@@ -960,6 +960,39 @@ fn cases() -> Vec<Case> {
             expected: &["out: in use by process", "out/.lock"],
         },
         Case {
+            name: "a run folder whose lock file holds no process id",
+            setup: |dir| {
+                let run = run_copy(dir);
+                std::fs::write(dir.join(&run).join(".lock"), "not a pid\n").unwrap();
+                args(&["train", "--resume", &run, "--quiet"])
+            },
+            expected: &["run/.lock", "not a process id", "remove the file"],
+        },
+        Case {
+            name: "minus infinity for a number of seconds",
+            setup: |_| {
+                args(&[
+                    "simulate",
+                    &trajectory(),
+                    "--out",
+                    "out",
+                    "--seconds",
+                    "-inf",
+                ])
+            },
+            expected: &["--seconds -inf"],
+        },
+        Case {
+            name: "minus infinity in a list of batch sizes",
+            setup: |_| args(&["bench", "sim", "--grid", "6x7", "--envs", "-inf"]),
+            expected: &["envs", "-inf"],
+        },
+        Case {
+            name: "a negative grid",
+            setup: |_| args(&["simulate", &trajectory(), "--out", "out", "--grid", "-5x5"]),
+            expected: &["--grid", "-5x5"],
+        },
+        Case {
             name: "export over a checkpoint of the run",
             setup: |dir| {
                 let run = run_copy(dir);

@@ -114,9 +114,23 @@ def optimize_text() -> str:
 
 def seal_text(out: str = "out") -> str:
     return (
-        f'dataset = "{DATASET}"\nscene = "{STUDY}"\nout = "{out}"\nmax_seconds = 0.1\n\n'
+        f'dataset = "ds"\nscene = "{STUDY}"\nout = "{out}"\nmax_seconds = 0.1\n\n'
         "[grid]\nvacuum_kpa = { min = 20.0, max = 30.0, steps = 2 }\n"
     )
+
+
+def with_seal_dataset(d: Path):
+    """Two takes of the study, the second flagged as a failure: what `seal fit` compares."""
+    entries = (DATASET / "manifest.toml").read_text().split("[[trajectory]]")
+    kept = []
+    for entry in entries:
+        if 'id = "HHHHH"' in entry or 'id = "HHHHM"' in entry:
+            kept.append(entry if "HHHHH" in entry else entry.replace('split = "train"',
+                                                                       'split = "excluded"\nfailure = true'))
+    (d / "ds").mkdir()
+    (d / "ds/manifest.toml").write_text("".join("[[trajectory]]" + e for e in kept))
+    for take in ("HHHHH", "HHHHM"):
+        copy_tree(DATASET / take, d / "ds" / take)
 
 
 class Fixtures:
@@ -219,6 +233,7 @@ def with_seal(d: Path, old: str = None, new: str = None):
         assert old in text, old
         text = text.replace(old, new, 1)
     (d / "seal.toml").write_text(text)
+    with_seal_dataset(d)
 
 
 def with_motive(d: Path, old: str = None, new: str = None):
@@ -666,7 +681,7 @@ def misc_cases() -> list:
              words=["cuda"]),
         Case("bench ppo empty hidden", ["bench", "ppo", "--hidden", ""], words=["--hidden"]),
         Case("eval unknown recorded level", ["eval", "run", "--recorded", "fast"], with_run,
-             words=["fast"]),
+             words=["--recorded"]),
         Case("eval unknown split", ["eval", "--params", "quick.toml", "--split", "nope"],
              with_quick, words=["nope"]),
         Case("eval --set without --config", ["eval", "run", "--set", "a=1"], with_run,
@@ -758,7 +773,7 @@ def misc_cases() -> list:
         Case("import a take listed nowhere", ["data", "import-motive", "zz.csv", "--out", "out",
                                               "--config", "motive.toml"],
              lambda d: (with_motive(d), (d / "zz.csv").write_text("garbage\n")),
-             words=["zz.csv"]),
+             words=['"zz"', "motive.toml"]),
         Case("import the same take twice", [*IMPORT[:3], str(MOTIVE_TAKE), *IMPORT[3:]],
              with_motive, words=["twice"]),
         Case("import a truncated gzip", ["data", "import-motive", "a30_m0.5_high.csv.gz", "--out",
@@ -766,7 +781,7 @@ def misc_cases() -> list:
              lambda d: (with_motive(d), (d / "a30_m0.5_high.csv.gz").write_bytes(
                  MOTIVE_TAKE.read_bytes()[:3000])), words=["a30_m0.5_high.csv.gz"]),
         Case("import --robot count mismatch", [*IMPORT, "--robot", "r1.csv", "r2.csv"],
-             lambda d: with_motive(d), words=["--robot"]),
+             lambda d: with_motive(d), words=["r1.csv", "_robot.csv"]),
         Case("scene manifest with garbage JSON", ["scene", "from-manifest", "m.json", "--base", BASE,
                                                   "--out", "s.toml"],
              lambda d: (d / "m.json").write_text('{"packages": [1, 2'), words=["m.json"]),

@@ -5,7 +5,10 @@
 //! commands started on the same folder exactly one holds it; the other gets
 //! [`LockError::Held`], naming the folder and the holder's process id. A lock whose process no
 //! longer runs (killed, or stopped by a crash of the machine) is stale: it is taken over, and
-//! [`FolderLock::taken_over`] says from whom, so the command can say so.
+//! [`FolderLock::taken_over`] says from whom, so the command can say so; so is an empty one (its
+//! holder stopped between creating it and writing its id). A lock file that holds anything else
+//! was not written by this module, so nothing says who holds the folder: it is refused
+//! ([`LockError::Foreign`]) and left for the user to remove.
 //!
 //! The lock file is removed when the [`FolderLock`] is dropped: on normal return, on an error,
 //! and while unwinding from a panic. An exit that skips destructors (`std::process::exit` from a
@@ -44,15 +47,15 @@ pub struct FolderLock {
 pub enum Stale {
     /// It named this process, which no longer runs.
     Ended(u32),
-    /// It held this text, which is no process id.
-    NoProcess(String),
+    /// It was empty: its holder stopped before writing its id.
+    Empty,
 }
 
 impl fmt::Display for Stale {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Stale::Ended(pid) => write!(f, "process {pid}, which no longer runs"),
-            Stale::NoProcess(text) => write!(f, "no process (it held {text:?})"),
+            Stale::Empty => write!(f, "no process (it was empty)"),
         }
     }
 }
@@ -66,6 +69,13 @@ pub enum LockError {
         folder: PathBuf,
         /// The process id the lock file holds.
         pid: u32,
+    },
+    /// The lock file holds something other than a process id: not written by this module.
+    Foreign {
+        /// The lock file.
+        file: PathBuf,
+        /// What it holds (trimmed).
+        text: String,
     },
     /// The file system refused (a missing or read-only folder, a full disk).
     Io {
@@ -87,6 +97,13 @@ impl fmt::Display for LockError {
                  or stop it, then try again",
                 folder.display(),
                 folder.join(LOCK_FILE).display()
+            ),
+            LockError::Foreign { file, text } => write!(
+                f,
+                "{}: a lock file that holds {text:?}, not a process id, so whoever holds the \
+                 folder is unknown; if no command is writing into the folder, remove the file, \
+                 then try again",
+                file.display()
             ),
             LockError::Io {
                 path,
@@ -250,7 +267,13 @@ fn lock(folder: &Path, created: Vec<PathBuf>) -> Result<FolderLock, LockError> {
                         })
                     }
                     Some(pid) => taken_over = Some(Stale::Ended(pid)),
-                    None => taken_over = Some(Stale::NoProcess(holder.text.clone())),
+                    None if holder.text.is_empty() => taken_over = Some(Stale::Empty),
+                    None => {
+                        return Err(LockError::Foreign {
+                            file,
+                            text: holder.text,
+                        })
+                    }
                 }
                 set_aside(&file, &holder)?;
             }
@@ -470,17 +493,22 @@ mod tests {
     }
 
     #[test]
-    fn a_lock_that_names_no_process_is_taken_over() {
+    fn an_empty_lock_is_taken_over_and_a_foreign_one_refused() {
         let _serial = serial();
-        for text in ["not a pid", "0", "-3", "4294967295", ""] {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(LOCK_FILE), "").unwrap();
+        let lock = FolderLock::acquire(dir.path()).unwrap();
+        assert_eq!(lock.taken_over(), Some(&Stale::Empty));
+        drop(lock);
+        for text in ["not a pid", "0", "-3", "4294967295"] {
             let dir = tempfile::tempdir().unwrap();
-            std::fs::write(dir.path().join(LOCK_FILE), text).unwrap();
-            let lock = FolderLock::acquire(dir.path()).unwrap();
-            assert_eq!(
-                lock.taken_over(),
-                Some(&Stale::NoProcess(text.to_string())),
-                "{text}"
-            );
+            let file = dir.path().join(LOCK_FILE);
+            std::fs::write(&file, text).unwrap();
+            let err = FolderLock::acquire(dir.path()).unwrap_err();
+            assert!(matches!(err, LockError::Foreign { .. }), "{text}: {err}");
+            assert!(err.to_string().contains(".lock"), "{err}");
+            // The file is left as it was.
+            assert_eq!(std::fs::read_to_string(&file).unwrap(), text);
         }
     }
 

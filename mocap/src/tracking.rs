@@ -60,6 +60,8 @@ pub struct TrackingReport {
     pub points: usize,
     /// Points on a track of the first frame.
     pub points_on_initial_tracks: usize,
+    /// The recording carried its markers' ids (kept as they were, nothing tracked).
+    pub recorded_ids: bool,
 }
 
 impl TrackingReport {
@@ -194,7 +196,10 @@ pub fn track_markers(
 
 /// The report of a recording that came with ids: tracks of the first frame, later tracks, breaks.
 fn report_of_labelled(frames: &MarkerFrames) -> TrackingReport {
-    let mut report = TrackingReport::default();
+    let mut report = TrackingReport {
+        recorded_ids: true,
+        ..TrackingReport::default()
+    };
     let mut initial: Vec<u32> = Vec::new();
     let mut seen_before: Vec<u32> = Vec::new();
     let mut last: Vec<u32> = Vec::new();
@@ -273,7 +278,14 @@ mod tests {
         // Ids already known are kept, and the report is counted from them.
         let (again, same) = track_markers(&labelled, &TrackingSettings::default());
         assert_eq!(again, labelled);
-        assert_eq!(same, report);
+        assert!(!report.recorded_ids && same.recorded_ids);
+        assert_eq!(
+            same,
+            TrackingReport {
+                recorded_ids: true,
+                ..report
+            }
+        );
     }
 
     #[test]

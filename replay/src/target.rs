@@ -65,8 +65,10 @@ pub struct Target {
     pub times: Vec<f64>,
     /// Markers seen in each compared frame.
     pub markers: Vec<Vec<[f64; 3]>>,
-    /// The track (physical marker id) of each marker of each compared frame, parallel to `markers`
-    /// ([`rlpkg_mocap::tracking`]); one empty list per frame until [`Target::track`].
+    /// The track (physical marker id) of each marker of each compared frame, parallel to `markers`:
+    /// the recording's own ids when it carries them (an imported Motive take's cleaned tracks),
+    /// else made by [`Target::track`] ([`rlpkg_mocap::tracking`]), one empty list per frame until
+    /// then.
     pub marker_tracks: Vec<Vec<u32>>,
     /// The simulated site (index into [`Target::sites`]) of each marker of each compared frame,
     /// parallel to `markers`: `None` until [`Target::tie_sites`], and for a marker whose track was
@@ -142,6 +144,14 @@ impl Target {
             .map(|k| trajectory.markers.frame(k).to_vec())
             .collect();
         let marker_sites = markers.iter().map(|f| vec![None; f.len()]).collect();
+        let marker_tracks = (0..frames)
+            .map(|k| {
+                trajectory
+                    .markers
+                    .frame_ids(k)
+                    .map_or_else(Vec::new, <[u32]>::to_vec)
+            })
+            .collect();
         Ok(Self {
             id: trajectory.id.clone(),
             placement,
@@ -155,7 +165,7 @@ impl Target {
                 .collect(),
             times: (0..frames).map(|k| trajectory.markers.t(k)).collect(),
             markers,
-            marker_tracks: vec![Vec::new(); frames],
+            marker_tracks,
             marker_sites,
             phases: phases(&trajectory.tool, frames),
             tracking: None,
@@ -256,12 +266,23 @@ impl Target {
     }
 
     /// Gives every compared marker its track ([`rlpkg_mocap::track_markers`] over the compared
-    /// frames), once.
+    /// frames), once; a recording that carries its ids keeps them (the report then counts them).
     pub fn track(&mut self) {
         if self.tracking.is_some() {
             return;
         }
-        let frames = MarkerFrames::from_frames(self.times.clone(), self.markers.clone());
+        let has_ids = self.marker_tracks.iter().any(|ids| !ids.is_empty());
+        let frames = if has_ids {
+            let labelled = self.marker_tracks.iter().zip(&self.markers);
+            MarkerFrames::from_labelled_frames(
+                self.times.clone(),
+                labelled
+                    .map(|(ids, points)| ids.iter().copied().zip(points.iter().copied()).collect())
+                    .collect(),
+            )
+        } else {
+            MarkerFrames::from_frames(self.times.clone(), self.markers.clone())
+        };
         let (labelled, report) = track_markers(&frames, &TrackingSettings::default());
         self.marker_tracks = (0..labelled.len())
             .map(|k| labelled.frame_ids(k).expect("tracked").to_vec())
@@ -349,6 +370,39 @@ mod tests {
                 .collect::<Vec<_>>()
         );
         assert!(whole.within(-1.0).is_none());
+    }
+
+    #[test]
+    fn a_recording_that_carries_marker_ids_keeps_them() {
+        let mut trajectory = crate::test_support::recorded("HHHHH");
+        assert!(Target::new(&trajectory, Some(1.0), false)
+            .unwrap()
+            .marker_tracks
+            .iter()
+            .all(Vec::is_empty));
+        // Ids as an import gives them: here every frame's markers numbered in reverse, which
+        // frame-to-frame tracking would never produce.
+        let frames = &trajectory.markers;
+        let reversed = (0..frames.len())
+            .map(|k| {
+                let points = frames.frame(k);
+                let n = points.len() as u32;
+                (0..n).rev().zip(points.iter().copied()).collect()
+            })
+            .collect();
+        let times = (0..frames.len()).map(|k| frames.t(k)).collect();
+        trajectory.markers = MarkerFrames::from_labelled_frames(times, reversed);
+        let mut target = Target::new(&trajectory, Some(1.0), false).unwrap();
+        let given = target.marker_tracks.clone();
+        assert_eq!(
+            given[0].first(),
+            Some(&(target.markers[0].len() as u32 - 1))
+        );
+        target.track();
+        assert_eq!(target.marker_tracks, given);
+        let report = target.tracking.as_ref().unwrap();
+        assert_eq!(report.initial_tracks, target.markers[0].len());
+        assert!(report.recorded_ids);
     }
 
     #[test]

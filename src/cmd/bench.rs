@@ -19,10 +19,14 @@ pub enum BenchCommand {
 #[derive(Args)]
 pub struct SimBenchArgs {
     /// Package grids per layer, comma-separated ROWSxCOLS (Table 2 sizes by default).
-    #[arg(long, default_value = "11x13,16x19,21x25,26x31")]
+    #[arg(
+        long,
+        default_value = "11x13,16x19,21x25,26x31",
+        allow_hyphen_values = true
+    )]
     grid: String,
     /// Batch sizes, comma-separated.
-    #[arg(long, default_value = "1,64,1024")]
+    #[arg(long, default_value = "1,64,1024", allow_hyphen_values = true)]
     envs: String,
     /// Wall-clock seconds per measurement.
     #[arg(long, default_value_t = 3.0)]

@@ -314,8 +314,13 @@ fn run_posterior(
         let Some(t) = &target.tracking else {
             continue; // synthetic or given identities: nothing was tracked
         };
+        let how = if t.recorded_ids {
+            "with the recording's ids"
+        } else {
+            "tracked"
+        };
         println!(
-            "  {}: {} markers tracked from the first frame ({:.1} % of the points), {} breaks, {} relinked, \
+            "  {}: {} markers {how} from the first frame ({:.1} % of the points), {} breaks, {} relinked, \
              {} new tracks; {:.1} % of the points tied to a site",
             target.id,
             t.initial_tracks,

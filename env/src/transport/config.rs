@@ -12,7 +12,7 @@ use rlpkg_sim::{Randomization, SceneConfig, ToolLimits};
 use serde::{Deserialize, Serialize};
 
 use super::path::ToolPeaks;
-use super::sensors::{SensorConfig, MAX_DELAY_STEPS};
+use super::sensors::{SensorConfig, MAX_DELAY_STEPS, MAX_HISTORY_STEPS};
 use crate::EnvError;
 
 /// The whole `[transport]` table.
@@ -209,13 +209,17 @@ pub struct TransportRandomization {
 
 /// `[transport.randomization.held_out_draws]`: every `every`-th draw of the posterior (its rows
 /// `every`, `2 every`, ... counted from 1) is held out, so that a policy can be evaluated on
-/// materials it never trained on. `rows` says which part the task draws its packages from.
+/// materials it never trained on; the held-out rows alternate between test (the first, third,
+/// ...) and validation (the second, fourth, ...), so that what is chosen by looking at results
+/// is chosen on materials the reported table never sees. `rows` says which part the task draws
+/// its packages from.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HeldOutDraws {
     /// The period of the held-out rows, in [2, 100].
     pub every: usize,
-    /// Which draws the packages take: `"training"` (the rest) or `"held_out"`.
+    /// Which draws the packages take: `"training"` (the rest), `"held_out"` (all held-out
+    /// rows), `"validation"` or `"test"` (their halves).
     pub rows: DrawRows,
 }
 
@@ -227,6 +231,10 @@ pub enum DrawRows {
     Training,
     /// The held-out draws only.
     HeldOut,
+    /// The held-out draws of even rank (the second, fourth, ...): where choices are made.
+    Validation,
+    /// The held-out draws of odd rank (the first, third, ...): where results are reported.
+    Test,
 }
 
 impl HeldOutDraws {
@@ -235,12 +243,25 @@ impl HeldOutDraws {
         (index + 1).is_multiple_of(self.every)
     }
 
+    /// Whether the draw in row `index` (from 0) is in the part `rows` names.
+    fn is_in(&self, index: usize, rows: DrawRows) -> bool {
+        let held_out = self.is_held_out(index);
+        // Rank among the held-out rows, from 1.
+        let rank = (index + 1) / self.every;
+        match rows {
+            DrawRows::Training => !held_out,
+            DrawRows::HeldOut => held_out,
+            DrawRows::Validation => held_out && rank.is_multiple_of(2),
+            DrawRows::Test => held_out && !rank.is_multiple_of(2),
+        }
+    }
+
     /// The rows of `draws` the task uses.
     pub fn select<T: Clone>(&self, draws: &[T]) -> Vec<T> {
         draws
             .iter()
             .enumerate()
-            .filter(|(k, _)| self.is_held_out(*k) == (self.rows == DrawRows::HeldOut))
+            .filter(|(k, _)| self.is_in(*k, self.rows))
             .map(|(_, row)| row.clone())
             .collect()
     }
@@ -708,6 +729,14 @@ impl TransportConfig {
                     &format!("[low, high] control steps within [0, {MAX_DELAY_STEPS}]"),
                 ));
             }
+        }
+        if sensors.history_steps > MAX_HISTORY_STEPS {
+            return Err(bad(
+                s,
+                "sensors.history_steps",
+                sensors.history_steps.to_string(),
+                &format!("earlier control steps within [0, {MAX_HISTORY_STEPS}]"),
+            ));
         }
         let n = &sensors.noise;
         for (key, value, high) in [
@@ -1204,6 +1233,8 @@ mod tests {
         };
         assert_eq!(split("training"), [1, 2, 4, 5, 7, 8, 10]);
         assert_eq!(split("held_out"), [3, 6, 9]);
+        assert_eq!(split("test"), [3, 9]);
+        assert_eq!(split("validation"), [6]);
         let text = test_table().replace(
             "[transport.randomization.package]",
             "[transport.randomization.held_out_draws]\nevery = 3\nrows = \"training\"\n\n\

@@ -449,6 +449,7 @@ impl VecEnv for Transport {
                 finished.push(env);
             } else {
                 self.observe_into(env, out, false);
+                self.remember_observation(env);
             }
         }
         self.finish_episodes(&finished, out)?;

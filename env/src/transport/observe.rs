@@ -141,6 +141,25 @@ fn observation_groups(config: &TransportConfig, num_cups: usize) -> (Named, Name
             if sensors.wrist_force_torque {
                 actor.extend(owned(&WRIST_OBSERVATIONS));
             }
+            let current = actor.clone();
+            for j in 1..=sensors.history_steps {
+                actor.extend(
+                    current
+                        .iter()
+                        .map(|(n, u)| (format!("{n}_prev{j}"), u.clone())),
+                );
+            }
+            let (command, unit) = match config.profile_rate {
+                Some(_) => ("profile_rate", "1"),
+                None => ("path_speed", "m/s"),
+            };
+            for j in 1..=sensors.history_steps {
+                actor.extend([
+                    (format!("sent_{command}_prev{j}"), unit.to_string()),
+                    (format!("sent_tilt_offset_x_prev{j}"), "rad".to_string()),
+                    (format!("sent_tilt_offset_z_prev{j}"), "rad".to_string()),
+                ]);
+            }
             let mut critic = actor.clone();
             critic.extend(
                 ACTOR_OBSERVATIONS[..MEASURED_TOOL_OBSERVATIONS]
@@ -286,24 +305,14 @@ impl Transport {
             return;
         };
         let copy = &sensors.copies[env];
-        let reading = copy.readings.output();
-        let at = |k: usize| DVec3::new(reading[k], reading[k + 1], reading[k + 2]);
-        let q = DQuat::from_xyzw(
-            reading[row::ORIENTATION],
-            reading[row::ORIENTATION + 1],
-            reading[row::ORIENTATION + 2],
-            reading[row::ORIENTATION + 3],
-        );
         let mut actor = Vec::with_capacity(critic.len());
-        self.tool_observations(
-            env,
-            at(row::POSITION),
-            q,
-            at(row::VELOCITY),
-            at(row::ANGULAR_VELOCITY),
-            &mut actor,
-        );
-        actor.extend_from_slice(&reading[row::CUPS..]);
+        actor.extend(self.current_actor_row(env));
+        for earlier in &copy.history {
+            actor.extend_from_slice(earlier);
+        }
+        for sent in &copy.sent {
+            actor.extend_from_slice(sent);
+        }
         let mut full = actor.clone();
         full.extend_from_slice(&exact[..MEASURED_TOOL_OBSERVATIONS]);
         full.extend_from_slice(&exact[ACTOR_OBSERVATIONS.len()..]);
@@ -314,6 +323,44 @@ impl Transport {
         ]);
         write(obs, &actor);
         write(critic, &full);
+    }
+
+    /// Copy `env`'s actor observations of this control step with sensors (the reading that
+    /// reaches the policy now), without the history window.
+    fn current_actor_row(&self, env: usize) -> Vec<f64> {
+        let sensors = self.sensors.as_ref().expect("called with sensors only");
+        let reading = sensors.copies[env].readings.output();
+        let at = |k: usize| DVec3::new(reading[k], reading[k + 1], reading[k + 2]);
+        let q = DQuat::from_xyzw(
+            reading[row::ORIENTATION],
+            reading[row::ORIENTATION + 1],
+            reading[row::ORIENTATION + 2],
+            reading[row::ORIENTATION + 3],
+        );
+        let mut actor = Vec::new();
+        self.tool_observations(
+            env,
+            at(row::POSITION),
+            q,
+            at(row::VELOCITY),
+            at(row::ANGULAR_VELOCITY),
+            &mut actor,
+        );
+        actor.extend_from_slice(&reading[row::CUPS..]);
+        actor
+    }
+
+    /// Moves copy `env`'s current actor row into its history window (once per control step,
+    /// after the step's observations were written), the oldest row dropping out.
+    pub(super) fn remember_observation(&mut self, env: usize) {
+        let steps = match &self.sensors {
+            Some(sensors) if sensors.config.history_steps > 0 => sensors.config.history_steps,
+            _ => return,
+        };
+        let current = self.current_actor_row(env);
+        let history = &mut self.sensors.as_mut().expect("checked above").copies[env].history;
+        history.insert(0, current);
+        history.truncate(steps);
     }
 
     /// Copy `env`'s sensor readings now, before noise and the cell's vacuum response.
@@ -373,7 +420,13 @@ impl Transport {
             1e3 * kpa.unwrap_or(self.model.config.seal.vacuum_kpa) as f64
         });
         sensors.start_episode(env, package_supply_pa, &self.reading(env, wrist));
+        let steps = sensors.config.history_steps;
         self.sensors = Some(sensors);
+        // The window starts as if the first row had been seen for ever (as the delay lines do).
+        if steps > 0 {
+            let first = self.current_actor_row(env);
+            self.sensors.as_mut().expect("put back above").copies[env].history = vec![first; steps];
+        }
     }
 
     /// Takes this control step's reading of every copy still running.
@@ -413,7 +466,7 @@ impl Transport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transport::test_support::{env, sensors_table, test_table};
+    use crate::transport::test_support::{env, history_table, sensors_table, test_table};
     use crate::VecEnv;
 
     fn is_privileged(name: &str) -> bool {
@@ -449,6 +502,64 @@ mod tests {
         let names = &t.spec().observation.names;
         for required in ["cup3_vacuum_pressure", "wrist_torque_z", "goal_dx"] {
             assert!(names.iter().any(|n| n == required), "{required}");
+        }
+    }
+
+    #[test]
+    fn the_history_window_holds_the_earlier_rows_and_the_commands_sent() {
+        let mut plain = env(&sensors_table(), 2);
+        let mut windowed = env(&history_table(2), 2);
+        let base = plain.spec().observation.dim();
+        let names = windowed.spec().observation.names.clone();
+        assert_eq!(names.len(), 3 * base + 6);
+        assert_eq!(names[base], format!("{}_prev1", names[0]));
+        assert_eq!(names[3 * base], "sent_path_speed_prev1");
+        assert_eq!(names[3 * base + 5], "sent_tilt_offset_z_prev2");
+        assert!(!names.iter().any(|n| is_privileged(n)), "{names:?}");
+        let critic = windowed.spec().critic_observation.clone().unwrap();
+        assert_eq!(&critic.names[..names.len()], &names[..]);
+        let (mut a, mut b) = (plain.buffers(), windowed.buffers());
+        plain.try_reset(5, &mut a).unwrap();
+        windowed.try_reset(5, &mut b).unwrap();
+        let width = names.len();
+        let row = |out: &StepBuffers, env: usize| out.obs[env * width..(env + 1) * width].to_vec();
+        // At the start the window holds the first row, as if seen for ever, and no command.
+        for env in 0..2 {
+            let r = row(&b, env);
+            assert_eq!(&r[..base], &a.obs[env * base..(env + 1) * base]);
+            assert_eq!(&r[base..2 * base], &r[..base]);
+            assert_eq!(&r[2 * base..3 * base], &r[..base]);
+            assert_eq!(&r[3 * base..], &[0.0; 6]);
+        }
+        let mut earlier: Vec<Vec<f32>> = Vec::new();
+        let mut sent: Vec<[f32; 6]> = Vec::new();
+        for step in 0..5 {
+            let speed = 0.1 * (step + 1) as f32;
+            let actions = [speed, 0.02, -0.01, 0.5 * speed, -0.03, 0.0];
+            earlier.push(b.obs.clone());
+            sent.push(actions);
+            plain.step(&actions, &mut a).unwrap();
+            windowed.step(&actions, &mut b).unwrap();
+            assert!(!b.terminated.iter().chain(&b.truncated).any(|&d| d));
+            for env in 0..2 {
+                let r = row(&b, env);
+                // The current row is the plain task's: the window draws no random number.
+                assert_eq!(&r[..base], &a.obs[env * base..(env + 1) * base]);
+                let before = &earlier[step][env * width..env * width + base];
+                assert_eq!(&r[base..2 * base], before, "step {step}");
+                if step > 0 {
+                    let two_before = &earlier[step - 1][env * width..env * width + base];
+                    assert_eq!(&r[2 * base..3 * base], two_before, "step {step}");
+                }
+                assert_eq!(
+                    &r[3 * base..3 * base + 3],
+                    &sent[step][env * 3..env * 3 + 3]
+                );
+                if step > 0 {
+                    let previous = &sent[step - 1][env * 3..env * 3 + 3];
+                    assert_eq!(&r[3 * base + 3..], previous);
+                }
+            }
         }
     }
 

@@ -87,6 +87,17 @@ pub struct SensorConfig {
     /// [`LEAK_LOAD`] and the response instantaneous).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub vacuum: Option<VacuumDynamics>,
+    /// How many earlier control steps' observation rows the actor sees beside the current one
+    /// (newest first, each name suffixed `_prev<j>`), within [0, [`MAX_HISTORY_STEPS`]]: a
+    /// window of memory, so that a trend (a cup's vacuum starting to fall) and the commands still
+    /// in flight (each row holds the command sent the step before) are in its input. 0 (the
+    /// default) is the current row alone.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub history_steps: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// `[transport.sensors.vacuum]`: what differs between cells in how a cup's vacuum responds.
@@ -129,6 +140,9 @@ pub struct SensorNoise {
 
 /// Largest configurable delay (control steps).
 pub const MAX_DELAY_STEPS: usize = 10;
+
+/// Largest configurable history window (control steps).
+pub const MAX_HISTORY_STEPS: usize = 16;
 
 /// The vacuum (Pa below ambient) a cup holds under the leak model, for supply vacuum
 /// `supply_pa`, sealed fraction `sealed_fraction` and utilisation `utilisation` of an attached
@@ -228,6 +242,14 @@ pub(super) struct CopySensors {
     pub(super) readings: DelayLine,
     /// Actions on their way to the robot.
     pub(super) actions: DelayLine,
+    /// The actor's observation rows of the last [`SensorConfig::history_steps`] control steps
+    /// before the current one, newest first.
+    #[serde(default)]
+    pub(super) history: Vec<Vec<f64>>,
+    /// The commands the policy sent in the last [`SensorConfig::history_steps`] control steps,
+    /// newest first (what the cell's controller knows it sent, still in flight or executed).
+    #[serde(default)]
+    pub(super) sent: Vec<[f64; 3]>,
 }
 
 /// Raw readings of one copy before noise: tool pose and twist (world), cups, wrist wrench.
@@ -302,6 +324,8 @@ impl Sensors {
             cup_vacuum_pa: Vec::new(),
             readings: DelayLine::filled(&[], 0),
             actions: DelayLine::filled(&[0.0; 3], 0),
+            history: Vec::new(),
+            sent: Vec::new(),
         };
         Self {
             config,
@@ -388,6 +412,8 @@ impl Sensors {
             cup_vacuum_pa,
             readings: DelayLine::filled(&row, observation_delay),
             actions: DelayLine::filled(&[0.0; 3], action_delay),
+            history: Vec::new(),
+            sent: vec![[0.0; 3]; self.config.history_steps],
         };
     }
 
@@ -423,7 +449,12 @@ impl Sensors {
     /// The action copy `env`'s robot executes now, with `action` the policy's newest.
     pub(super) fn delay_action(&mut self, env: usize, action: &[f32]) -> [f32; 3] {
         let row: Vec<f64> = action.iter().map(|&a| a as f64).collect();
-        let out = self.copies[env].actions.push(&row);
+        let copy = &mut self.copies[env];
+        if self.config.history_steps > 0 {
+            copy.sent.insert(0, [row[0], row[1], row[2]]);
+            copy.sent.truncate(self.config.history_steps);
+        }
+        let out = copy.actions.push(&row);
         [out[0] as f32, out[1] as f32, out[2] as f32]
     }
 }
@@ -496,6 +527,7 @@ mod tests {
                 angular_velocity_rad_s: 1e-2,
             },
             vacuum: None,
+            history_steps: 0,
         }
     }
 

@@ -237,7 +237,7 @@ fn mismatch(reason: String) -> EnvError {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transport::test_support::{env, sensors_table, test_table};
+    use crate::transport::test_support::{env, history_table, sensors_table, test_table};
     use crate::VecEnv;
 
     /// `saved` in the flat layout [`SavedTransport::from_flat_layout`] reads.
@@ -275,7 +275,7 @@ mod tests {
 
     #[test]
     fn saved_state_continues_bit_identically() {
-        for text in [test_table(), sensors_table()] {
+        for text in [test_table(), sensors_table(), history_table(2)] {
             continues_bit_identically(&text);
         }
         // A state saved without sensors does not fit an environment with them.

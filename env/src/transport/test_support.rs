@@ -120,3 +120,11 @@ velocity_m_s = 0.005
 angular_velocity_rad_s = 0.01
 "#
 }
+
+/// [`sensors_table`] whose actor also sees its last `steps` observation rows and commands.
+pub(super) fn history_table(steps: usize) -> String {
+    sensors_table().replace(
+        "action_delay_steps = [1, 2]\n",
+        &format!("action_delay_steps = [1, 2]\nhistory_steps = {steps}\n"),
+    )
+}

@@ -100,7 +100,8 @@ pub struct EvalArgs {
         long,
         value_delimiter = ',',
         value_name = "FULL:STOP",
-        conflicts_with = "params"
+        conflicts_with = "params",
+        allow_hyphen_values = true
     )]
     pub governor: Vec<VacuumGovernor>,
     /// Transport policies: velocity levels of the recorded baselines evaluated beside the policy (the
