@@ -1241,6 +1241,25 @@ fn cases() -> Vec<Case> {
             ],
         },
         Case {
+            name: "seal fit into a folder of other files",
+            setup: |dir| {
+                seal_config(dir);
+                std::fs::create_dir(dir.join("out")).unwrap();
+                std::fs::write(dir.join("out/scene-of-mine.toml"), "kept").unwrap();
+                args(&["seal", "fit", "seal.toml"])
+            },
+            expected: &["seal.toml", "key `out`", "scene-of-mine.toml"],
+        },
+        Case {
+            name: "seal grid of one step over a range",
+            setup: |dir| {
+                seal_config(dir);
+                edit(&dir.join("seal.toml"), "steps = 2", "steps = 1");
+                args(&["seal", "fit", "seal.toml"])
+            },
+            expected: &["seal.toml", "vacuum_kpa.steps", "at least 2"],
+        },
+        Case {
             name: "seal fit into a file",
             setup: |dir| {
                 seal_config(dir);

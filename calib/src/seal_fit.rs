@@ -105,6 +105,14 @@ impl Axis {
                 &format!("a whole number from 1 to {MAX_STEPS}"),
             );
         }
+        // One step would test `min` alone and silently drop `max`.
+        if self.steps == 1 && self.max != self.min {
+            return bad(
+                "steps",
+                "1".into(),
+                "at least 2 for a range with max > min (or max = min for one value)",
+            );
+        }
         Ok(())
     }
 }

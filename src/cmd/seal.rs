@@ -47,8 +47,9 @@ pub fn run(command: SealCommand) -> anyhow::Result<()> {
 const OUTPUT_FILES: [&str; 4] = ["candidates.csv", "takes.csv", "fit.toml", "scene.toml"];
 
 /// The output folder and `--write-params`, checked before any replay: the folder must be one or
-/// be creatable (no file in its place or above it), and `--write-params` a writable file that is
-/// none of the fit's inputs (config, scene, dataset) nor one of the folder's other files.
+/// be creatable (no file in its place or above it) and hold nothing but an earlier fit's files,
+/// and `--write-params` a writable file that is none of the fit's inputs (config, scene, dataset)
+/// nor one of the folder's other files.
 fn check_outputs(args: &FitArgs, config: &SealFitConfig) -> anyhow::Result<()> {
     let out = &config.out;
     let existing = out
@@ -66,6 +67,25 @@ fn check_outputs(args: &FitArgs, config: &SealFitConfig) -> anyhow::Result<()> {
             out.display(),
             OUTPUT_FILES.join(", ")
         )));
+    }
+    // The folder takes this command's files only: a folder holding anything else (the scene's
+    // own folder, a dataset) would have same-named files replaced.
+    if let Ok(entries) = std::fs::read_dir(out) {
+        let foreign: Vec<String> = entries
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|name| !OUTPUT_FILES.contains(&name.as_str()) && name != ".lock")
+            .collect();
+        if let Some(first) = foreign.first() {
+            return Err(input_error(format!(
+                "{}: key `out` = {}: the folder holds other files ({first}{}); expected a new or \
+                 empty folder, or one with only an earlier seal fit's {}",
+                args.config.display(),
+                out.display(),
+                if foreign.len() > 1 { ", ..." } else { "" },
+                OUTPUT_FILES.join(", ")
+            )));
+        }
     }
     let Some(path) = &args.write_params else {
         return Ok(());
