@@ -44,19 +44,7 @@ pub fn check_output(option: &str, path: &Path) -> anyhow::Result<()> {
     rlpkg_files::check_destination(path).map_err(|err| input_error(format!("{option} {err}")))
 }
 
-/// The file that writing `path` replaces, for comparing with other paths: its canonical path when
-/// it exists (symbolic links followed, as a write follows them), else its folder's canonical path
-/// joined with its file name; `None` when not even its folder exists.
-pub fn resolved(path: &Path) -> Option<PathBuf> {
-    if let Ok(path) = path.canonicalize() {
-        return Some(path);
-    }
-    let folder = match path.parent() {
-        Some(folder) if !folder.as_os_str().is_empty() => folder,
-        _ => Path::new("."),
-    };
-    Some(folder.canonicalize().ok()?.join(path.file_name()?))
-}
+pub use rlpkg_files::resolved;
 
 /// An input of a command, which none of its outputs may be.
 pub enum Input<'a> {

@@ -68,6 +68,31 @@ pub const POSTERIOR_FILES: [&str; 8] = [
     "fisher.toml",
 ];
 
+/// Every file a calibration folder may receive: the optimiser's ([`crate::driver::OUTPUT_FILES`]),
+/// the sampled posterior's ([`POSTERIOR_FILES`]), its scene, corner plot and summary. None of them
+/// may be one of the calibration's inputs ([`output_over_input`]).
+pub fn folder_files() -> Vec<&'static str> {
+    let mut names: Vec<&str> = crate::driver::OUTPUT_FILES.to_vec();
+    names.extend(POSTERIOR_FILES);
+    names.extend([
+        "calibrated.toml",
+        "corner.png",
+        crate::posterior_files::SUMMARY_FILE,
+    ]);
+    names.sort_unstable();
+    names.dedup();
+    names
+}
+
+/// The first file a calibration into `out_dir` would write over one of its `inputs` (path, what
+/// it is), as (the output, the input, what it is); `None` when there is none.
+pub fn output_over_input<'a>(
+    out_dir: &Path,
+    inputs: &[(&'a Path, &'a str)],
+) -> Option<(PathBuf, &'a Path, &'a str)> {
+    rlpkg_files::output_over_input(out_dir, &folder_files(), inputs)
+}
+
 /// Finite-difference step (unit cube) of the Fisher analysis at the best draw: small against the
 /// posterior's widths, large against the simulator's single-precision noise.
 const FISHER_STEP: f64 = 1e-3;
@@ -97,6 +122,21 @@ pub enum SampledPosteriorError {
         /// The batch.
         batch: usize,
     },
+    /// A file the calibration writes would replace one of its inputs.
+    #[error(
+        "{}: the calibration writes {} there, which is {}, {what}; expected another output folder",
+        output.parent().unwrap_or(Path::new(".")).display(),
+        output.display(),
+        input.display()
+    )]
+    OutputOverInput {
+        /// The output file.
+        output: PathBuf,
+        /// The input it would replace.
+        input: PathBuf,
+        /// What the input is to the calibration.
+        what: String,
+    },
     /// The batch evaluator gave rows that do not fit the batch.
     #[error("batch {batch}: {message}")]
     Evaluator {
@@ -120,18 +160,27 @@ pub enum SampledPosteriorError {
 }
 
 /// Readies `out_dir` for a sampled posterior of the objective `record` (the text of its
-/// [`crate::fingerprint::ObjectiveRecord`]): with `fresh` the [`POSTERIOR_FILES`] there are
-/// removed; otherwise a folder whose log was made for another objective, or for an unrecorded
-/// one, is refused, so that a rerun resumes only its own evaluations. Removes the temporaries an
-/// interrupted write left (returned) and writes the record.
+/// [`crate::fingerprint::ObjectiveRecord`]): a folder where one of the calibration's `inputs`
+/// (path, what it is) would be written over is refused before anything is touched; with `fresh`
+/// the [`POSTERIOR_FILES`] there are removed; otherwise a folder whose log was made for another
+/// objective, or for an unrecorded one, is refused, so that a rerun resumes only its own
+/// evaluations. Removes the temporaries an interrupted write left (returned) and writes the record.
 pub fn prepare_folder(
     out_dir: &Path,
     record: &str,
     fresh: bool,
+    inputs: &[(&Path, &str)],
 ) -> Result<Vec<PathBuf>, SampledPosteriorError> {
     let fail = |path: &Path, e: std::io::Error| {
         SampledPosteriorError::Write(format!("{}: {e}", path.display()))
     };
+    if let Some((output, input, what)) = output_over_input(out_dir, inputs) {
+        return Err(SampledPosteriorError::OutputOverInput {
+            output,
+            input: input.to_path_buf(),
+            what: what.to_string(),
+        });
+    }
     if fresh {
         for file in POSTERIOR_FILES {
             let path = out_dir.join(file);
@@ -878,12 +927,17 @@ mod tests {
     fn a_folder_resumes_only_its_own_objective() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("posterior");
-        assert!(prepare_folder(&out, "a = 1\n", false).unwrap().is_empty());
+        assert!(prepare_folder(&out, "a = 1\n", false, &[])
+            .unwrap()
+            .is_empty());
         std::fs::write(out.join("evaluations.csv"), "batch\n").unwrap();
         let leftover = out.join(".samples.csv.a1B2c3");
         std::fs::write(&leftover, "").unwrap();
-        assert_eq!(prepare_folder(&out, "a = 1\n", false).unwrap(), [leftover]);
-        let other = prepare_folder(&out, "a = 2\n", false)
+        assert_eq!(
+            prepare_folder(&out, "a = 1\n", false, &[]).unwrap(),
+            [leftover]
+        );
+        let other = prepare_folder(&out, "a = 2\n", false, &[])
             .unwrap_err()
             .to_string();
         assert!(
@@ -891,15 +945,39 @@ mod tests {
             "{other}"
         );
         std::fs::remove_file(out.join(OBJECTIVE_FILE)).unwrap();
-        let unrecorded = prepare_folder(&out, "a = 2\n", false)
+        let unrecorded = prepare_folder(&out, "a = 2\n", false, &[])
             .unwrap_err()
             .to_string();
         assert!(unrecorded.contains("no objective.toml"), "{unrecorded}");
-        prepare_folder(&out, "a = 2\n", true).unwrap();
+        prepare_folder(&out, "a = 2\n", true, &[]).unwrap();
         assert!(!out.join("evaluations.csv").exists());
         assert_eq!(
             std::fs::read_to_string(out.join(OBJECTIVE_FILE)).unwrap(),
             "a = 2\n"
         );
+    }
+
+    #[test]
+    fn a_folder_whose_outputs_are_the_calibration_s_inputs_is_refused_untouched() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["posterior.toml", OBJECTIVE_FILE, "summary.json"] {
+            let config = dir.path().join(name);
+            std::fs::write(&config, "the config").unwrap();
+            for fresh in [false, true] {
+                let err = prepare_folder(dir.path(), "a = 1\n", fresh, &[(&config, "the config")])
+                    .unwrap_err();
+                assert!(
+                    matches!(err, SampledPosteriorError::OutputOverInput { .. }),
+                    "{err}"
+                );
+                assert!(err.to_string().contains(name), "{err}");
+                assert_eq!(std::fs::read_to_string(&config).unwrap(), "the config");
+            }
+            std::fs::remove_file(&config).unwrap();
+        }
+        // A config beside the outputs under another name is no output.
+        let config = dir.path().join("posterior-job.toml");
+        std::fs::write(&config, "the config").unwrap();
+        prepare_folder(dir.path(), "a = 1\n", false, &[(&config, "the config")]).unwrap();
     }
 }

@@ -27,6 +27,42 @@ use std::path::{Path, PathBuf};
 
 pub mod lock;
 
+/// The file that writing `path` replaces, for comparing with other paths: its canonical path when
+/// it exists (symbolic links followed, as a write follows them), else its folder's canonical path
+/// joined with its file name; `None` when not even its folder exists.
+pub fn resolved(path: &Path) -> Option<PathBuf> {
+    if let Ok(path) = path.canonicalize() {
+        return Some(path);
+    }
+    let folder = match path.parent() {
+        Some(folder) if !folder.as_os_str().is_empty() => folder,
+        _ => Path::new("."),
+    };
+    Some(folder.canonicalize().ok()?.join(path.file_name()?))
+}
+
+/// The first of the files `names` a command writes into `folder` that is one of its `inputs`
+/// (path, what it is to the command), as (the output's path, the input's path, what it is);
+/// `None` when none is (or the folder does not exist yet: nothing in it is an input).
+pub fn output_over_input<'a>(
+    folder: &Path,
+    names: &[&str],
+    inputs: &[(&'a Path, &'a str)],
+) -> Option<(PathBuf, &'a Path, &'a str)> {
+    for name in names {
+        let output = folder.join(name);
+        let Some(target) = resolved(&output) else {
+            continue;
+        };
+        for &(input, what) in inputs {
+            if resolved(input).is_some_and(|input| input == target) {
+                return Some((output, input, what));
+            }
+        }
+    }
+    None
+}
+
 /// Longest chain of symbolic links followed before giving up (Linux's own limit).
 const MAX_SYMLINKS: usize = 40;
 

@@ -393,7 +393,12 @@ pub fn sample_posterior<'py>(
         let record = ObjectiveRecord::posterior(cfg, smc, &loaded.ids, &loaded.scene)
             .to_text()
             .map_err(value_error)?;
-        prepare_folder(&out_dir, &record, fresh).map_err(value_error)?;
+        let preset = Path::new(&cfg.sim.preset);
+        let mut inputs = vec![(config.as_path(), "the calibration config")];
+        if !matches!(cfg.sim.preset.as_str(), "reference" | "physical") {
+            inputs.push((preset, "the config's scene (`sim.preset`)"));
+        }
+        prepare_folder(&out_dir, &record, fresh, &inputs).map_err(value_error)?;
         let mut objective = loaded.objective()?.with_replicas(&cfg.likelihood);
         let space = cfg.space();
         let sampled = match batches.as_mut() {

@@ -146,3 +146,15 @@ def test_sampled_posterior_errors_name_the_batch(in_repository, tiny_posterior, 
     other.write_text(other.read_text().replace("seed = 3", "seed = 4"))
     with pytest.raises(ValueError, match="objective.toml line"):
         sample_posterior(tiny_posterior, out_dir=tmp_path / "short")
+    # A config in the output folder under a name the calibration writes is never written over,
+    # with or without `fresh`.
+    inside = tmp_path / "inside"
+    inside.mkdir()
+    for name in ("posterior.toml", "objective.toml"):
+        config = inside / name
+        config.write_text(tiny_posterior.read_text())
+        for fresh in (False, True):
+            with pytest.raises(ValueError, match=f"which is .*{name}, the calibration config"):
+                sample_posterior(config, out_dir=inside, fresh=fresh)
+            assert config.read_text() == tiny_posterior.read_text()
+        config.unlink()

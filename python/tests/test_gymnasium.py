@@ -151,7 +151,25 @@ def test_a_negative_or_non_integer_seed_raises_value_or_type_error():
             reset(seed=-1)
         with pytest.raises(TypeError, match="seed="):
             reset(seed=1.5)
+        with pytest.raises(ValueError, match="seed="):
+            reset(seed=2**64)
         reset(seed=0)
+        reset(seed=np.int64(3))
+    # Copy 1's seed would wrap past 2**64 - 1 onto copy 0's of seed 0.
+    with pytest.raises(ValueError, match="seed=18446744073709551615"):
+        venv.reset(seed=2**64 - 1)
+    makers = (
+        lambda n: rlpkg.make("CartPole-v1", num_threads=n),
+        lambda n: rlpkg.make_vec("CartPole-v1", 1, num_threads=n),
+    )
+    for make in makers:
+        for bad, error in ((-1, ValueError), (2**40, ValueError), (True, TypeError), (1.5, TypeError)):
+            with pytest.raises(error, match="num_threads="):
+                make(bad)
+    env.close()
+    for call in (env.reset, lambda: env.step(0)):
+        with pytest.raises(RuntimeError, match="after close"):
+            call()
 
 
 def test_spec_gives_the_time_limit_and_render_modes_are_refused():

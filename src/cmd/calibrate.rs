@@ -25,7 +25,7 @@ use rlpkg_sim::SceneConfig;
 
 use crate::error::input_error;
 use crate::files::{
-    check_not_input, check_output, lock_folder, remove_staging_leftovers, resolved, Input, Staging,
+    check_not_input, check_output, lock_folder, remove_staging_leftovers, Input, Staging,
 };
 
 /// Progress-bar ticks per batch.
@@ -511,7 +511,7 @@ fn check_write_params(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow:
 /// The output folder must not be where one of the calibration's inputs (its config, its scene)
 /// sits under the name of a file the calibration writes: checked before any simulation.
 fn check_out_dir(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow::Result<()> {
-    use rlpkg_calib::sampled_posterior::POSTERIOR_FILES;
+    use rlpkg_calib::sampled_posterior::output_over_input;
     let mut inputs = vec![(args.config.as_path(), "the calibration config")];
     if !matches!(config.sim.preset.as_str(), "reference" | "physical") {
         inputs.push((
@@ -519,34 +519,23 @@ fn check_out_dir(args: &CalibrateArgs, config: &CalibrateConfig) -> anyhow::Resu
             "the config's scene (`sim.preset`)",
         ));
     }
-    let mut names: Vec<&str> = driver::OUTPUT_FILES.to_vec();
-    names.extend(POSTERIOR_FILES);
-    names.extend(["corner.png", posterior_files::SUMMARY_FILE]);
-    for name in names {
-        let output = config.out_dir.join(name);
-        let Some(target) = resolved(&output) else {
-            continue; // the folder does not exist yet: nothing in it is an input
-        };
-        for (input, what) in &inputs {
-            if resolved(input).is_some_and(|input| input == target) {
-                let given = match &args.out {
-                    Some(out) => format!("--out {}", out.display()),
-                    None => format!(
-                        "{}: key `out_dir` = {}",
-                        args.config.display(),
-                        config.out_dir.display()
-                    ),
-                };
-                return Err(input_error(format!(
-                    "{given}: the calibration writes {} there, which is {}, {what}; expected \
-                     another output folder",
-                    output.display(),
-                    input.display()
-                )));
-            }
-        }
-    }
-    Ok(())
+    let Some((output, input, what)) = output_over_input(&config.out_dir, &inputs) else {
+        return Ok(());
+    };
+    let given = match &args.out {
+        Some(out) => format!("--out {}", out.display()),
+        None => format!(
+            "{}: key `out_dir` = {}",
+            args.config.display(),
+            config.out_dir.display()
+        ),
+    };
+    Err(input_error(format!(
+        "{given}: the calibration writes {} there, which is {}, {what}; expected another output \
+         folder",
+        output.display(),
+        input.display()
+    )))
 }
 
 /// A time window longer than every recording would compare nothing less than the whole of each:

@@ -12,7 +12,7 @@ from gymnasium.envs.registration import EnvSpec
 
 from rlpkg import _native
 from rlpkg._spaces import single_spaces
-from rlpkg._vector import check_actions, check_id_and_config
+from rlpkg._vector import MAX_SEED, check_actions, check_id_and_config, check_num_threads
 
 
 class RlpkgEnv(gymnasium.Env):
@@ -30,6 +30,7 @@ class RlpkgEnv(gymnasium.Env):
         obs_mode: str = "actor",
         num_threads: int | None = None,
     ):
+        num_threads = check_num_threads(num_threads)
         path = check_id_and_config(env_id, config)
         self._core = _native.VecEnvCore(env_id, 1, path, "disabled", num_threads)
         self.rlpkg_spec = self._core.spec()
@@ -72,9 +73,11 @@ class RlpkgEnv(gymnasium.Env):
         # Checked before Gymnasium seeds its own generator, which raises its own error type.
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise TypeError(f"seed={seed!r}: expected None or an integer >= 0")
-        if seed is not None and seed < 0:
-            raise ValueError(f"seed={seed}: expected an integer >= 0")
-        super().reset(seed=seed)
+        if seed is not None and not 0 <= seed <= MAX_SEED:
+            raise ValueError(f"seed={seed}: expected an integer in [0, 2**64 - 1]")
+        if self._core is None:
+            raise RuntimeError("reset after close")
+        super().reset(seed=None if seed is None else int(seed))
         if options:
             raise ValueError(f"options: {sorted(options)}; {self.rlpkg_spec['id']} takes none")
         args = {} if seed is None else {"seed": int(seed)}
@@ -84,6 +87,8 @@ class RlpkgEnv(gymnasium.Env):
     def step(self, action):
         """One step; ``info`` holds the environment's per-step values (Transport-v0's reward
         terms and episode outcomes) as floats."""
+        if self._core is None:
+            raise RuntimeError("step after close")
         flat = check_actions(action, self._discrete_n, self._action_shape)
         obs, critic, rewards, terminated, truncated, _, _, info = self._core.step(flat)
         infos = {name: float(info[0, k]) for k, name in enumerate(self.info_names)}

@@ -90,14 +90,37 @@ def check_actions(actions: Any, space_n: int | None, shape: tuple, low=None, hig
     return np.ascontiguousarray(array, dtype=np.float32).reshape(-1)
 
 
+# Seeds are unsigned 64-bit in the environment.
+MAX_SEED = 2**64 - 1
+
+# More pool threads than this is a typo, not a machine (each is an OS thread).
+MAX_THREADS = 1024
+
+
+def check_num_threads(num_threads: Any) -> int | None:
+    """``num_threads`` checked: None or an integer in [1, MAX_THREADS]."""
+    if num_threads is None:
+        return None
+    if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)):
+        raise TypeError(f"num_threads={num_threads!r}: expected None or an integer in [1, {MAX_THREADS}]")
+    if not 1 <= num_threads <= MAX_THREADS:
+        raise ValueError(f"num_threads={num_threads}: expected None or an integer in [1, {MAX_THREADS}]")
+    return int(num_threads)
+
+
 def check_seeds(seed: Any, num_envs: int, seed_stride: int) -> dict:
     """The core's reset arguments for ``seed``: None, an int (copy i from ``seed * seed_stride +
-    i``) or one int per copy."""
+    i``, all within unsigned 64 bits) or one int per copy."""
     if seed is None:
         return {}
     if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
         if seed < 0:
             raise ValueError(f"seed={seed}: expected an integer >= 0")
+        if int(seed) * seed_stride + num_envs - 1 > MAX_SEED:
+            raise ValueError(
+                f"seed={seed}: copy {num_envs - 1}'s seed (seed x seed_stride {seed_stride} + copy) "
+                f"would exceed 2**64 - 1; expected a smaller seed"
+            )
         return {"seed": int(seed) * seed_stride}
     if isinstance(seed, (list, tuple, np.ndarray)):
         seeds = list(seed)
@@ -105,6 +128,8 @@ def check_seeds(seed: Any, num_envs: int, seed_stride: int) -> dict:
             raise ValueError(f"seed: {len(seeds)} seeds; expected one per copy ({num_envs})")
         if not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0 for s in seeds):
             raise TypeError(f"seed: {seeds!r}; expected integers >= 0 (one per copy)")
+        if any(int(s) > MAX_SEED for s in seeds):
+            raise ValueError(f"seed: {seeds!r}; expected integers up to 2**64 - 1")
         return {"seeds": [int(s) for s in seeds]}
     raise TypeError(f"seed={seed!r}: expected None, an integer or a list of integers")
 
@@ -131,8 +156,7 @@ class RlpkgVectorEnv(VectorEnv):
             raise ValueError(f"num_envs={num_envs!r}: expected an integer >= 1")
         if isinstance(seed_stride, bool) or not isinstance(seed_stride, (int, np.integer)) or seed_stride < 1:
             raise ValueError(f"seed_stride={seed_stride!r}: expected an integer >= 1")
-        if num_threads is not None and (not isinstance(num_threads, (int, np.integer)) or num_threads < 1):
-            raise ValueError(f"num_threads={num_threads!r}: expected None or an integer >= 1")
+        num_threads = check_num_threads(num_threads)
         mode = mode_name(autoreset_mode)
         path = check_id_and_config(env_id, config)
         self._core = _native.VecEnvCore(env_id, int(num_envs), path, mode, num_threads)
