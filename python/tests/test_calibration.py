@@ -141,6 +141,11 @@ def test_sampled_posterior_errors_name_the_batch(in_repository, tiny_posterior, 
         sample_posterior(tiny_posterior, out_dir=tmp_path / "no-site", map_batches=no_site)
     with pytest.raises(ValueError, match=r"no \[smc\] table"):
         sample_posterior(TINY, out_dir=tmp_path / "optimiser")
+    with pytest.raises(TypeError, match="map_batches=5"):
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "not-callable", map_batches=5)
+    with pytest.raises(TypeError, match="fresh='yes'"):
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "not-bool", fresh="yes")
+    assert not (tmp_path / "not-callable").exists() and not (tmp_path / "not-bool").exists()
     # A folder holding another objective's evaluations is not resumed.
     other = tmp_path / "short" / "objective.toml"
     other.write_text(other.read_text().replace("seed = 3", "seed = 4"))

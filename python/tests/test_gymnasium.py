@@ -184,6 +184,8 @@ def test_spec_gives_the_time_limit_and_render_modes_are_refused():
         lambda: rlpkg.make("CartPole-v1", render_mode="rgb_array"),
         lambda: gymnasium.make("rlpkg/CartPole-v1", render_mode="human"),
         lambda: gymnasium.make_vec("rlpkg/CartPole-v1", 2, render_mode="rgb_array"),
+        lambda: rlpkg.make_vec("CartPole-v1", 2, render_mode="rgb_array"),
     ):
         with pytest.raises((ValueError, gymnasium.error.Error), match="render"):
             make()
+    rlpkg.make_vec("CartPole-v1", 2, render_mode=None).close()

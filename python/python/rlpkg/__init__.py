@@ -10,9 +10,9 @@
   each action's clock rate.
 """
 
-from rlpkg._env import RlpkgEnv, check_render_mode, make
+from rlpkg._env import RlpkgEnv, make
 from rlpkg._native import IDS, ProfileReference, __version__, rust_rollout_digest
-from rlpkg._vector import RlpkgVectorEnv, default_transport_config, make_vec
+from rlpkg._vector import RlpkgVectorEnv, check_render_mode, default_transport_config, make_vec
 
 __all__ = [
     "IDS",

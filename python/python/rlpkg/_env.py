@@ -12,7 +12,13 @@ from gymnasium.envs.registration import EnvSpec
 
 from rlpkg import _native
 from rlpkg._spaces import single_spaces
-from rlpkg._vector import MAX_SEED, check_actions, check_id_and_config, check_num_threads
+from rlpkg._vector import (
+    MAX_SEED,
+    check_actions,
+    check_id_and_config,
+    check_num_threads,
+    check_render_mode,
+)
 
 
 class RlpkgEnv(gymnasium.Env):
@@ -112,12 +118,3 @@ def make(id: str, **kwargs) -> RlpkgEnv:
     environments have no renderer)."""
     check_render_mode(kwargs.pop("render_mode", None))
     return RlpkgEnv(id, **kwargs)
-
-
-def check_render_mode(render_mode) -> None:
-    """Refuses a render mode: no rlpkg environment draws frames."""
-    if render_mode is not None:
-        raise ValueError(
-            f"render_mode={render_mode!r}: rlpkg environments have no renderer; expected None "
-            "(pictures and animations of evaluated episodes: `rlpkg eval`)"
-        )

@@ -108,6 +108,15 @@ def check_num_threads(num_threads: Any) -> int | None:
     return int(num_threads)
 
 
+def check_render_mode(render_mode) -> None:
+    """Refuses a render mode: no rlpkg environment draws frames."""
+    if render_mode is not None:
+        raise ValueError(
+            f"render_mode={render_mode!r}: rlpkg environments have no renderer; expected None "
+            "(pictures and animations of evaluated episodes: `rlpkg eval`)"
+        )
+
+
 def check_seeds(seed: Any, num_envs: int, seed_stride: int) -> dict:
     """The core's reset arguments for ``seed``: None, an int (copy i from ``seed * seed_stride +
     i``, all within unsigned 64 bits) or one int per copy."""
@@ -159,7 +168,10 @@ class RlpkgVectorEnv(VectorEnv):
         num_threads = check_num_threads(num_threads)
         mode = mode_name(autoreset_mode)
         path = check_id_and_config(env_id, config)
-        self._core = _native.VecEnvCore(env_id, int(num_envs), path, mode, num_threads)
+        try:
+            self._core = _native.VecEnvCore(env_id, int(num_envs), path, mode, num_threads)
+        except OverflowError as e:  # beyond 64 bits: refused as any too large size is
+            raise ValueError(f"num_envs={num_envs}: expected at most 1048576 copies ({e})") from e
         self.rlpkg_spec = self._core.spec()
         self.num_envs = int(num_envs)
         self.obs_mode = obs_mode
@@ -253,6 +265,7 @@ def make_vec(
     obs_mode: str = "actor",
     num_threads: int | None = None,
     seed_stride: int = 1,
+    render_mode: None = None,
 ) -> RlpkgVectorEnv:
     """``num_envs`` copies of ``id`` ("CartPole-v1", "Pendulum-v1", "Transport-v0") as a
     :class:`gymnasium.vector.VectorEnv`.
@@ -266,8 +279,10 @@ def make_vec(
     - ``num_threads``: the size of the environment's thread pool (default: RAYON_NUM_THREADS,
       else OMP_NUM_THREADS, else the cores);
     - ``seed_stride``: ``reset(seed=s)`` seeds copy i from ``s * seed_stride + i`` (use
-      ``num_envs`` so that workers seeded 0, 1, ... share no copy's seed).
+      ``num_envs`` so that workers seeded 0, 1, ... share no copy's seed);
+    - ``render_mode``: only None (the environments have no renderer).
     """
+    check_render_mode(render_mode)
     return RlpkgVectorEnv(
         id,
         num_envs,

@@ -130,6 +130,10 @@ def sample_posterior(
     Returns the summary of ``posterior.toml``: ``parameters`` (per parameter ``name``, ``lower_5``,
     ``median``, ``upper_95``, ``box_share``, ``best``), ``evaluations``, ``stages``,
     ``log_evidence``, ``best_log_likelihood``, ... and ``out_dir``."""
+    if map_batches is not None and not callable(map_batches):
+        raise TypeError(f"map_batches={map_batches!r}: expected None or a callable (config, horizon, candidates)")
+    if not isinstance(fresh, bool):
+        raise TypeError(f"fresh={fresh!r}: expected True or False")
     return _native.sample_posterior(
         os.fspath(config), None if out_dir is None else os.fspath(out_dir), map_batches, fresh
     )
