@@ -119,3 +119,22 @@ def test_bad_input_raises(tmp_path, small_transport):
         env.step(1)
     env.reset()
     env.step(0)
+
+
+def test_a_corrupt_events_file_is_a_value_error_naming_it(tmp_path):
+    from rlpkg.runs import scalars
+
+    for body in (bytes(range(256)), (20).to_bytes(8, "little") + bytes(4) + b"\xff" * 20 + bytes(4)):
+        path = tmp_path / "events.out.tfevents.1"
+        path.write_bytes(body)
+        with pytest.raises(ValueError, match="events.out.tfevents.1: not a TensorBoard event file"):
+            scalars(tmp_path)
+
+
+def test_ray_map_chunks_are_whole_numbers():
+    from rlpkg.calibration import RayMap
+
+    assert RayMap(chunks=np.int64(2)).chunks == 2
+    for bad in (True, 0, 1.5):
+        with pytest.raises(ValueError, match="chunks="):
+            RayMap(chunks=bad)

@@ -26,6 +26,8 @@ import os
 from collections import Counter
 from collections.abc import Mapping, Sequence
 
+import numpy as np
+
 from rlpkg import _native
 
 __all__ = ["Objective", "RayMap", "sample_posterior"]
@@ -184,9 +186,9 @@ class RayMap:
     ``nodes`` counts the chunks each node (its Ray id) evaluated."""
 
     def __init__(self, chunks: int, root: str | os.PathLike | None = None, **options):
-        if not isinstance(chunks, int) or chunks < 1:
+        if isinstance(chunks, bool) or not isinstance(chunks, (int, np.integer)) or chunks < 1:
             raise ValueError(f"chunks={chunks!r}: expected a whole number >= 1")
-        self.chunks = chunks
+        self.chunks = int(chunks)
         self.root = os.path.abspath(os.fspath(root) if root is not None else os.getcwd())
         self.options = {"num_cpus": 1, "scheduling_strategy": "SPREAD", **options}
         self.nodes: Counter[str] = Counter()

@@ -72,30 +72,37 @@ def scalars(run_dir: str | os.PathLike) -> dict[str, list[tuple[int, float]]]:
         raise FileNotFoundError(f"{run_dir}: no events.out.tfevents.* file (not an rlpkg run folder?)")
     out: dict[str, list[tuple[int, float]]] = {}
     for path in files:
-        data = path.read_bytes()
-        i = 0
-        # TFRecord: u64 length, u32 CRC of the length, the Event message, u32 CRC of the message.
-        while i + 12 <= len(data):
-            (length,) = struct.unpack_from("<Q", data, i)
-            event = data[i + 12 : i + 12 + length]
-            i += 12 + length + 4
-            step = 0
-            summaries = []
-            for field, _, value in _fields(event):
-                if field == 2:
-                    step = value
-                elif field == 5:
-                    summaries.append(value)
-            for summary in summaries:
-                for field, _, value in _fields(summary):
-                    if field != 1:
-                        continue
-                    tag, number = None, None
-                    for f, wire, v in _fields(value):
-                        if f == 1:
-                            tag = v.decode()
-                        elif f == 2 and wire == 5:
-                            (number,) = struct.unpack("<f", v)
-                    if tag is not None and number is not None:
-                        out.setdefault(tag, []).append((step, number))
+        try:
+            _read_scalars(path.read_bytes(), out)
+        except (ValueError, IndexError, struct.error, UnicodeDecodeError) as e:
+            raise ValueError(f"{path}: not a TensorBoard event file of scalars ({e})") from e
     return out
+
+
+def _read_scalars(data: bytes, out: dict[str, list[tuple[int, float]]]) -> None:
+    """Adds the scalars of one event file's bytes ``data`` to ``out``."""
+    i = 0
+    # TFRecord: u64 length, u32 CRC of the length, the Event message, u32 CRC of the message.
+    while i + 12 <= len(data):
+        (length,) = struct.unpack_from("<Q", data, i)
+        event = data[i + 12 : i + 12 + length]
+        i += 12 + length + 4
+        step = 0
+        summaries = []
+        for field, _, value in _fields(event):
+            if field == 2:
+                step = value
+            elif field == 5:
+                summaries.append(value)
+        for summary in summaries:
+            for field, _, value in _fields(summary):
+                if field != 1:
+                    continue
+                tag, number = None, None
+                for f, wire, v in _fields(value):
+                    if f == 1:
+                        tag = v.decode()
+                    elif f == 2 and wire == 5:
+                        (number,) = struct.unpack("<f", v)
+                if tag is not None and number is not None:
+                    out.setdefault(tag, []).append((step, number))
