@@ -74,7 +74,13 @@ fn check_outputs(args: &FitArgs, config: &SealFitConfig) -> anyhow::Result<()> {
         let foreign: Vec<String> = entries
             .flatten()
             .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|name| !OUTPUT_FILES.contains(&name.as_str()) && name != ".lock")
+            .filter(|name| {
+                // An interrupted fit's temporaries are its own (written anew on success).
+                let own = OUTPUT_FILES
+                    .iter()
+                    .any(|file| name == file || rlpkg_files::is_temporary_of(name, file));
+                !own && name != ".lock"
+            })
             .collect();
         if let Some(first) = foreign.first() {
             return Err(input_error(format!(
