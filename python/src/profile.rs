@@ -192,15 +192,24 @@ impl ProfileReference {
         Ok((action_x.clamp(-bound, bound), action_z.clamp(-bound, bound)))
     }
 
-    /// The reference position (m) and nominal tilt (rad) at arc length `progress_m`.
-    fn pose(&self, progress_m: f64) -> ([f64; 3], f64) {
+    /// The reference position (m) and nominal tilt (rad) at arc length `progress_m` (clamped to
+    /// the path).
+    fn pose(&self, progress_m: f64) -> PyResult<([f64; 3], f64)> {
+        if progress_m.is_nan() {
+            return Err(value_error(
+                "progress_m: NaN; expected an arc length along the path (m)",
+            ));
+        }
         let (position, tilt) = self.path.pose(progress_m);
-        (position.to_array(), tilt)
+        Ok((position.to_array(), tilt))
     }
 
     /// The plan's progress (m) and path speed (m/s) at time `t_s` along it.
-    fn planned(&self, t_s: f64) -> (f64, f64) {
-        self.plan.at(t_s)
+    fn planned(&self, t_s: f64) -> PyResult<(f64, f64)> {
+        if t_s.is_nan() {
+            return Err(value_error("t_s: NaN; expected a time along the plan (s)"));
+        }
+        Ok(self.plan.at(t_s))
     }
 
     /// The actor's `profile_clock` (s): time along the plan.

@@ -114,6 +114,10 @@ def test_a_non_finite_action_is_refused(rate_config):
     assert reference.progress_m == 0.0
     with pytest.raises(ValueError, match="tilt offsets"):
         reference.tilt_offsets(0.1, float("inf"))
+    with pytest.raises(ValueError, match="progress_m: NaN"):
+        reference.pose(float("nan"))
+    with pytest.raises(ValueError, match="t_s: NaN"):
+        reference.planned(float("nan"))
 
 
 def test_tilt_offsets_are_bounded_and_fade_over_the_last_stretch(rate_config):
