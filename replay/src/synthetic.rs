@@ -137,16 +137,7 @@ pub fn synthetic_targets(
                 .map(|seen| seen.iter().map(|&s| s as u32).collect())
                 .collect();
             // Identities are the sites themselves; the report counts them as recorded.
-            let labelled = rlpkg_mocap::MarkerFrames::from_labelled_frames(
-                target.times.clone(),
-                marker_tracks
-                    .iter()
-                    .zip(&markers)
-                    .map(|(ids, points): (&Vec<u32>, &Vec<[f64; 3]>)| {
-                        ids.iter().copied().zip(points.iter().copied()).collect()
-                    })
-                    .collect(),
-            );
+            let labelled = crate::target::labelled_frames(&target.times, &marker_tracks, &markers);
             let tracking = Some(rlpkg_mocap::track_markers(&labelled, &Default::default()).1);
             let object = recorder.object[t].iter().map(|&p| noisy(p)).collect();
             Ok(Target {

@@ -273,13 +273,7 @@ impl Target {
         }
         let has_ids = self.marker_tracks.iter().any(|ids| !ids.is_empty());
         let frames = if has_ids {
-            let labelled = self.marker_tracks.iter().zip(&self.markers);
-            MarkerFrames::from_labelled_frames(
-                self.times.clone(),
-                labelled
-                    .map(|(ids, points)| ids.iter().copied().zip(points.iter().copied()).collect())
-                    .collect(),
-            )
+            labelled_frames(&self.times, &self.marker_tracks, &self.markers)
         } else {
             MarkerFrames::from_frames(self.times.clone(), self.markers.clone())
         };
@@ -333,6 +327,22 @@ impl Target {
     pub fn duration(&self) -> f64 {
         self.times.last().copied().unwrap_or(0.0)
     }
+}
+
+/// Frames at `times` whose markers `markers` carry the ids `tracks` (parallel lists per frame).
+pub(crate) fn labelled_frames(
+    times: &[f64],
+    tracks: &[Vec<u32>],
+    markers: &[Vec<[f64; 3]>],
+) -> MarkerFrames {
+    MarkerFrames::from_labelled_frames(
+        times.to_vec(),
+        tracks
+            .iter()
+            .zip(markers)
+            .map(|(ids, points)| ids.iter().copied().zip(points.iter().copied()).collect())
+            .collect(),
+    )
 }
 
 #[cfg(test)]

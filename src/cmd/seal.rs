@@ -71,7 +71,7 @@ fn check_outputs(args: &FitArgs, config: &SealFitConfig) -> anyhow::Result<()> {
     // The folder takes this command's files only: a folder holding anything else (the scene's
     // own folder, a dataset) would have same-named files replaced.
     if let Ok(entries) = std::fs::read_dir(out) {
-        let foreign: Vec<String> = entries
+        let mut foreign: Vec<String> = entries
             .flatten()
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .filter(|name| {
@@ -82,6 +82,7 @@ fn check_outputs(args: &FitArgs, config: &SealFitConfig) -> anyhow::Result<()> {
                 !own && name != ".lock"
             })
             .collect();
+        foreign.sort();
         if let Some(first) = foreign.first() {
             return Err(input_error(format!(
                 "{}: key `out` = {}: the folder holds other files ({first}{}); expected a new or \
