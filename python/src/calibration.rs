@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyKeyError, PyKeyboardInterrupt, PyRuntimeError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rlpkg_calib::config::CalibrateConfig;
@@ -21,12 +21,10 @@ use rlpkg_replay::loss::LossWeights;
 use rlpkg_replay::{LikelihoodSettings, Target};
 use rlpkg_sim::SceneConfig;
 
+use crate::{describe, value_error};
+
 /// The key of a log row's `objective` column (the candidate's log-likelihood).
 const LOG_LIKELIHOOD: &str = "log_likelihood";
-
-fn value_error(e: impl std::fmt::Display) -> PyErr {
-    PyValueError::new_err(e.to_string())
-}
 
 /// The objective of a calibration configuration: its scene, parameters, trajectories and loss.
 /// Each evaluation builds the `SimObjective` from these (its observer is not `Send`), so the
@@ -59,12 +57,15 @@ impl Loaded {
         max_seconds: Option<f64>,
     ) -> PyResult<Self> {
         let mut config = CalibrateConfig::load(path).map_err(value_error)?;
-        if let Some(ids) = trajectories.filter(|ids| !ids.is_empty()) {
-            if let Some((_, id)) = rlpkg_calib::config::repeated_id(&ids) {
-                return Err(value_error(format!(
-                    "trajectories: {id} is listed twice; expected each trajectory id once"
-                )));
+        if let Some(ids) = trajectories {
+            // Refused as the configuration's `trajectories = []` is: None keeps the file's ids.
+            if ids.is_empty() {
+                return Err(value_error(
+                    "trajectories: []; expected at least one trajectory id (or None for the \
+                     configuration's)",
+                ));
             }
+            rlpkg_calib::config::check_unique_ids("trajectories", &ids).map_err(value_error)?;
             config.trajectories = Some(ids);
         }
         if max_seconds.is_some() {
@@ -269,35 +270,48 @@ fn row_dict<'py>(py: Python<'py>, row: &CandidateRow) -> PyResult<Bound<'py, PyD
     Ok(d)
 }
 
-/// A log row from what `map_batches` returned for candidate `candidate` of a batch.
-fn row_from_python(candidate: usize, row: &Bound<'_, PyAny>) -> PyResult<CandidateRow> {
-    let value = |key: &str| -> PyResult<f64> {
-        row.get_item(key)
-            .and_then(|v| v.extract::<f64>())
-            .map_err(|e| {
-                value_error(format!(
-                    "row {candidate}: {key}: {e}; expected a dict of numbers with the keys \
-                     {LOG_LIKELIHOOD}, {} (as Objective.log_likelihoods gives them)",
-                    POSTERIOR_METRICS.join(", ")
-                ))
-            })
+/// A log row from what `map_batches` returned for candidate `candidate` of a batch, or why it
+/// is not one.
+fn row_from_python(candidate: usize, row: &Bound<'_, PyAny>) -> Result<CandidateRow, String> {
+    let value = |key: &str| -> Result<f64, String> {
+        let problem = match row.get_item(key) {
+            Ok(v) => match v.extract::<f64>() {
+                Ok(number) => return Ok(number),
+                Err(_) => format!("{key} = {}", describe(&v)),
+            },
+            Err(e) if e.is_instance_of::<PyKeyError>(row.py()) => format!("no {key} key"),
+            Err(e) => format!("{} has no {key} ({e})", describe(row)),
+        };
+        Err(format!(
+            "row {candidate}: {problem}; expected a dict of numbers with the keys \
+             {LOG_LIKELIHOOD}, {} (as Objective.log_likelihoods gives them)",
+            POSTERIOR_METRICS.join(", ")
+        ))
     };
     Ok(CandidateRow {
         log_likelihood: value(LOG_LIKELIHOOD)?,
         metrics: POSTERIOR_METRICS
             .iter()
             .map(|name| value(name))
-            .collect::<PyResult<_>>()?,
+            .collect::<Result<_, _>>()?,
     })
 }
 
+/// Why `map_batches` failed a batch.
+enum BatchFailure {
+    /// It raised this (the cause of the sampler's RuntimeError).
+    Raised(PyErr),
+    /// It returned rows that do not fit the batch (a ValueError, as the sampler's own check).
+    Unfit,
+}
+
 /// The sampler's batches evaluated by the Python callable
-/// `map_batches(config, horizon, candidates)`, called with the GIL held; the first error it
-/// raised is kept, to be raised again as the cause of the sampler's.
+/// `map_batches(config, horizon, candidates)`, called with the GIL held; its first failure is
+/// kept, to decide the error the sampler's becomes.
 struct PythonBatches {
     map_batches: Py<PyAny>,
     config: String,
-    raised: Option<PyErr>,
+    failure: Option<BatchFailure>,
 }
 
 impl BatchEvaluator for PythonBatches {
@@ -306,23 +320,27 @@ impl BatchEvaluator for PythonBatches {
         horizon: Option<f64>,
         candidates: &[Vec<f64>],
     ) -> Result<Vec<CandidateRow>, String> {
-        let rows = Python::attach(|py| -> PyResult<Vec<CandidateRow>> {
+        let rows = Python::attach(|py| -> Result<Vec<CandidateRow>, (String, BatchFailure)> {
+            let raised = |e: PyErr| (e.to_string(), BatchFailure::Raised(e));
             // Ctrl-C stops the sampler between batches.
-            py.check_signals()?;
-            let rows = self.map_batches.bind(py).call1((
-                self.config.as_str(),
-                horizon,
-                candidates.to_vec(),
-            ))?;
-            rows.try_iter()?
+            py.check_signals().map_err(raised)?;
+            let rows = self
+                .map_batches
+                .bind(py)
+                .call1((self.config.as_str(), horizon, candidates.to_vec()))
+                .map_err(raised)?;
+            let unfit = |message: String| (message, BatchFailure::Unfit);
+            rows.try_iter()
+                .map_err(|_| unfit(format!("returned {}, not a list of rows", describe(&rows))))?
                 .enumerate()
-                .map(|(candidate, row)| row_from_python(candidate, &row?))
+                .map(|(candidate, row)| {
+                    row_from_python(candidate, &row.map_err(raised)?).map_err(unfit)
+                })
                 .collect()
         });
-        rows.map_err(|e| {
-            let message = format!("map_batches: {e}");
-            self.raised.get_or_insert(e);
-            message
+        rows.map_err(|(message, failure)| {
+            self.failure.get_or_insert(failure);
+            format!("map_batches: {message}")
         })
     }
 }
@@ -377,7 +395,7 @@ pub fn sample_posterior<'py>(
     let mut batches = map_batches.map(|map_batches| PythonBatches {
         map_batches,
         config: config.to_string_lossy().into_owned(),
-        raised: None,
+        failure: None,
     });
     let (sampled, out_dir) = py.detach(|| -> PyResult<_> {
         let loaded = Loaded::new(&config, None, None)?;
@@ -426,13 +444,16 @@ pub fn sample_posterior<'py>(
         Ok(posterior) => return summary_dict(py, &posterior, &out_dir),
         Err(e) => e,
     };
-    Err(match batches.and_then(|b| b.raised) {
-        Some(raised) if raised.is_instance_of::<PyKeyboardInterrupt>(py) => raised,
-        Some(raised) => {
+    Err(match batches.and_then(|b| b.failure) {
+        Some(BatchFailure::Raised(raised)) if raised.is_instance_of::<PyKeyboardInterrupt>(py) => {
+            raised
+        }
+        Some(BatchFailure::Raised(raised)) => {
             let err = PyRuntimeError::new_err(error.to_string());
             err.set_cause(py, Some(raised));
             err
         }
+        Some(BatchFailure::Unfit) => value_error(error),
         None => match error {
             SampledPosteriorError::Smc(_) => PyRuntimeError::new_err(error.to_string()),
             other => value_error(other),

@@ -12,10 +12,13 @@ use std::sync::Mutex;
 mod calibration;
 mod profile;
 
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use numpy::{
+    PyArray1, PyArrayMethods, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArray,
+    PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{IntoPyDict, PyBool, PyDict};
 use rlpkg_env::tasks::{Task, IDS};
 use rlpkg_vec_env::digest::rollout_digest;
 use rlpkg_vec_env::{
@@ -24,6 +27,74 @@ use rlpkg_vec_env::{
 
 fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
+}
+
+/// `value` for an error message: its repr (cut at 80 characters) and its type, e.g. `'1' (a
+/// str)`, as `rlpkg._checks.describe` gives it on the Python side.
+fn describe(value: &Bound<'_, PyAny>) -> String {
+    let mut text = value.repr().map_or_else(|_| "?".into(), |r| r.to_string());
+    if text.chars().count() > 80 {
+        text = text.chars().take(77).collect::<String>() + "...";
+    }
+    let kind = value
+        .get_type()
+        .name()
+        .map_or_else(|_| "?".into(), |n| n.to_string());
+    let article = match kind.starts_with(['a', 'e', 'i', 'o', 'u']) {
+        true => "an",
+        false => "a",
+    };
+    format!("{text} ({article} {kind})")
+}
+
+/// `value` as a real number for the argument `name` (a Python or NumPy real; not a bool, which
+/// is no quantity), else a TypeError saying what was `expected`. Arguments take `&Bound<PyAny>`
+/// and this, rather than `f64`, for an error that names them.
+fn real(name: &str, value: &Bound<'_, PyAny>, expected: &str) -> PyResult<f64> {
+    if !value.is_instance_of::<PyBool>() {
+        if let Ok(number) = value.extract::<f64>() {
+            return Ok(number);
+        }
+    }
+    Err(PyTypeError::new_err(format!(
+        "{name}: expected {expected}, got {}",
+        describe(value)
+    )))
+}
+
+/// `value` as a float64 array for the argument `name`: any array-like of real numbers (a NumPy
+/// array of another dtype, nested lists), converted by NumPy; else a TypeError (a ValueError
+/// when NumPy makes no array of it, e.g. of ragged lists) saying what was `expected`.
+fn real_array<'py>(
+    name: &str,
+    value: &Bound<'py, PyAny>,
+    expected: &str,
+) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+    let py = value.py();
+    let array = numpy::get_array_module(py)?
+        .call_method1("asarray", (value,))
+        .map_err(|e| {
+            value_error(format!(
+                "{name}: expected {expected}, got {} ({e})",
+                describe(value)
+            ))
+        })?;
+    let dtype = array.getattr("dtype")?;
+    let kind: String = dtype.getattr("kind")?.extract()?;
+    // Integers and floats of any width; not bools, strings or objects.
+    if !matches!(kind.as_str(), "i" | "u" | "f") {
+        let got = match value.is_instance_of::<PyUntypedArray>() {
+            true => format!("an array of dtype {dtype}"),
+            false => format!("{}, an array of dtype {dtype} to NumPy", describe(value)),
+        };
+        return Err(PyTypeError::new_err(format!(
+            "{name}: expected {expected}, got {got}"
+        )));
+    }
+    let no_copy = [("copy", false)].into_py_dict(py)?;
+    array
+        .call_method("astype", ("float64",), Some(&no_copy))?
+        .extract()
 }
 
 /// The size of the thread pool: `num_threads`, else `RAYON_NUM_THREADS`, else `OMP_NUM_THREADS`,

@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 
 use glam::DVec3;
-use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use rlpkg_env::transport::{
     plan_path_profile, MotionLimits, PathProfile, ProfileRateAction, TransportLimits,
@@ -15,7 +15,15 @@ use rlpkg_env::transport::{
 
 use rlpkg_env::tasks::read_transport_config;
 
-use crate::value_error;
+use crate::{real, real_array, value_error};
+
+/// What `positions` takes.
+const POSITIONS: &str = "a (K, 3) array of real numbers with K >= 2 (the path's reference \
+                         positions in m, in order along the path)";
+
+/// What `tilts` takes.
+const TILTS: &str =
+    "a (K,) array of real numbers, one per position (the tilt about world x in rad)";
 
 /// A path given as poses at increasing arc length: positions joined by straight segments, the
 /// tilt interpolated linearly along them.
@@ -27,25 +35,24 @@ struct SampledPath {
 }
 
 impl SampledPath {
-    fn new(positions: &PyReadonlyArray2<f64>, tilts: &PyReadonlyArray1<f64>) -> PyResult<Self> {
+    fn new(positions: &PyReadonlyArrayDyn<f64>, tilts: &PyReadonlyArrayDyn<f64>) -> PyResult<Self> {
         let shape = positions.shape();
         if shape.len() != 2 || shape[1] != 3 || shape[0] < 2 {
             return Err(value_error(format!(
-                "positions: shape {shape:?}; expected (K, 3) with K >= 2 (the path's reference \
-                 positions in m, in order along the path)"
+                "positions: shape {shape:?}; expected {POSITIONS}"
             )));
         }
         let k = shape[0];
-        if tilts.len() != k {
+        if tilts.shape() != [k] {
             return Err(value_error(format!(
-                "tilts: {} values; expected one per position ({k}), the tilt about world x in rad",
-                tilts.len()
+                "tilts: shape {:?}; expected {TILTS} ({k} values)",
+                tilts.shape()
             )));
         }
-        let rows = positions.as_array();
-        let positions: Vec<DVec3> = rows
-            .rows()
-            .into_iter()
+        // In logical (row-major) order whatever the strides: three coordinates per point.
+        let coordinates: Vec<f64> = positions.as_array().iter().copied().collect();
+        let positions: Vec<DVec3> = coordinates
+            .chunks_exact(3)
             .map(|r| DVec3::new(r[0], r[1], r[2]))
             .collect();
         let tilts_rad: Vec<f64> = tilts.as_array().iter().copied().collect();
@@ -120,12 +127,16 @@ impl ProfileReference {
     /// (K, rad about world x) under the limits of the Transport-v0 configuration `config` (its
     /// `[transport.limits]` times `[transport.profile_rate].limits_scale`, at its control rate),
     /// and starts at the path's start, at rest, at rate 1 (as an episode starts).
+    /// `positions` and `tilts` may be any array-likes of real numbers (lists, float32 arrays):
+    /// they are converted to float64.
     #[new]
     fn new(
         config: PathBuf,
-        positions: PyReadonlyArray2<f64>,
-        tilts: PyReadonlyArray1<f64>,
+        positions: &Bound<'_, PyAny>,
+        tilts: &Bound<'_, PyAny>,
     ) -> PyResult<Self> {
+        let positions = real_array("positions", positions, POSITIONS)?;
+        let tilts = real_array("tilts", tilts, TILTS)?;
         let settings = read_transport_config(&config).map_err(value_error)?;
         let Some(action) = settings.profile_rate else {
             return Err(value_error(format!(
@@ -154,7 +165,8 @@ impl ProfileReference {
 
     /// Advances one control interval with the policy's first action (the clock rate) and returns
     /// `(progress_m, path_speed_m_s)`, the reference's place along the path and its speed.
-    fn step(&mut self, action: f64) -> PyResult<(f64, f64)> {
+    fn step(&mut self, action: &Bound<'_, PyAny>) -> PyResult<(f64, f64)> {
+        let action = real("action", action, "a finite clock rate (a number)")?;
         if !action.is_finite() {
             return Err(value_error(format!(
                 "action: {action}; expected a finite clock rate"
@@ -180,7 +192,13 @@ impl ProfileReference {
     /// The tilt offsets about world x and z (rad) the policy's second and third actions give at
     /// the reference's progress: within `[transport.limits].max_tilt_offset_deg`, shrinking to
     /// zero over the path's last `tilt_offset_fade_m` when the configuration sets it.
-    fn tilt_offsets(&self, action_x: f64, action_z: f64) -> PyResult<(f64, f64)> {
+    fn tilt_offsets(
+        &self,
+        action_x: &Bound<'_, PyAny>,
+        action_z: &Bound<'_, PyAny>,
+    ) -> PyResult<(f64, f64)> {
+        let action_x = real("action_x", action_x, "a finite tilt offset (rad)")?;
+        let action_z = real("action_z", action_z, "a finite tilt offset (rad)")?;
         if !(action_x.is_finite() && action_z.is_finite()) {
             return Err(value_error(format!(
                 "tilt offsets ({action_x}, {action_z}): expected finite angles (rad)"
@@ -194,7 +212,8 @@ impl ProfileReference {
 
     /// The reference position (m) and nominal tilt (rad) at arc length `progress_m` (clamped to
     /// the path).
-    fn pose(&self, progress_m: f64) -> PyResult<([f64; 3], f64)> {
+    fn pose(&self, progress_m: &Bound<'_, PyAny>) -> PyResult<([f64; 3], f64)> {
+        let progress_m = real("progress_m", progress_m, "an arc length along the path (m)")?;
         if progress_m.is_nan() {
             return Err(value_error(
                 "progress_m: NaN; expected an arc length along the path (m)",
@@ -205,7 +224,8 @@ impl ProfileReference {
     }
 
     /// The plan's progress (m) and path speed (m/s) at time `t_s` along it.
-    fn planned(&self, t_s: f64) -> PyResult<(f64, f64)> {
+    fn planned(&self, t_s: &Bound<'_, PyAny>) -> PyResult<(f64, f64)> {
+        let t_s = real("t_s", t_s, "a time along the plan (s)")?;
         if t_s.is_nan() {
             return Err(value_error("t_s: NaN; expected a time along the plan (s)"));
         }

@@ -69,6 +69,57 @@ def test_objective_overrides_and_bad_input(in_repository):
         Objective("nothere.toml")
 
 
+SECONDS = r"max_seconds: expected a number of seconds > 0 \(or None\), "
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, message",
+    [
+        # As the file's `trajectories = []` is refused: None keeps the file's ids.
+        ({"trajectories": []}, ValueError, r"trajectories: expected .* at least one trajectory id .*, got \[\]"),
+        ({"trajectories": [1]}, TypeError, r"trajectories: expected .* \(strings\), got \[1\] \(a list\)"),
+        ({"max_seconds": "1"}, TypeError, SECONDS + r"got '1' \(a str\)"),
+        ({"max_seconds": True}, TypeError, SECONDS + r"got True \(a bool\)"),
+        ({"max_seconds": float("inf")}, ValueError, SECONDS + "got inf"),
+    ],
+)
+def test_objective_arguments_are_refused_by_name(in_repository, kwargs, error, message):
+    with pytest.raises(error, match=message):
+        Objective(TINY, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def tiny_objective():
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(REPOSITORY)
+        return Objective(TINY, max_seconds=0.2)
+
+
+BATCH = r"batch: expected a list of parameter vectors or \{name: value\} mappings \(for one, pass \[params\]\), "
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (lambda o: o.evaluate([1e4, 1e-3]), TypeError, BATCH + r"got \[10000.0, 0.001\] \(a list\)"),
+        (lambda o: o.evaluate({"k_tri_e": 1e4, "k_tri_d": 1e-3}), TypeError, BATCH + r"got \{'k_tri_e'"),
+        (lambda o: o.evaluate(None), TypeError, BATCH + r"got None"),
+        (lambda o: o.evaluate([["a", "b"]]), TypeError, r"batch\[0\]\[0\]: expected a number, got 'a' \(a str\)"),
+        (
+            lambda o: o.evaluate([{"k_tri_e": 1e4, "k_tri_d": None}]),
+            TypeError,
+            r"batch\[0\]\['k_tri_d'\]: expected a number, got None",
+        ),
+        (lambda o: o.evaluate([5.0, [1e4, 1e-3]]), TypeError, r"batch\[0\]: expected a parameter vector .*, got 5.0"),
+        (lambda o: o.log_likelihoods([o.base_values()], horizon="1"), TypeError, r"horizon: .*, got '1' \(a str\)"),
+        (lambda o: o.log_likelihoods([o.base_values()], horizon=-1.0), ValueError, r"horizon: expected .*, got -1.0"),
+    ],
+)
+def test_batches_and_horizons_are_refused_by_name(tiny_objective, call, error, message):
+    with pytest.raises(error, match=message):
+        call(tiny_objective)
+
+
 # The files a sampled posterior writes, besides the command's calibrated.toml, corner.png and summary.json.
 POSTERIOR_FILES = [
     "objective.toml", "evaluations.csv", "search.csv", "stages.csv", "samples.csv", "posterior.toml", "best.toml",
@@ -137,8 +188,13 @@ def test_sampled_posterior_errors_name_the_batch(in_repository, tiny_posterior, 
     def no_site(config, horizon, candidates):
         return [{k: v for k, v in row.items() if k != "site_mse_m2"}] * len(candidates)
 
-    with pytest.raises(RuntimeError, match="row 0: site_mse_m2"):
+    # Rows that do not fit the batch are a ValueError naming the key, as the docs say.
+    with pytest.raises(ValueError, match="batch 0: map_batches: row 0: no site_mse_m2 key"):
         sample_posterior(tiny_posterior, out_dir=tmp_path / "no-site", map_batches=no_site)
+    with pytest.raises(ValueError, match="row 0: no log_likelihood key"):
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "no-ll", map_batches=lambda c, h, x: [{}] * len(x))
+    with pytest.raises(ValueError, match=r"map_batches: returned None \(a NoneType\), not a list of rows"):
+        sample_posterior(tiny_posterior, out_dir=tmp_path / "none", map_batches=lambda c, h, x: None)
     with pytest.raises(ValueError, match=r"no \[smc\] table"):
         sample_posterior(TINY, out_dir=tmp_path / "optimiser")
     with pytest.raises(TypeError, match="map_batches=5"):

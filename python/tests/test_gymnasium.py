@@ -127,8 +127,9 @@ def test_dict_observations_give_the_critic_group(small_transport):
 def test_sb3_adapter_reports_terminal_observations():
     from rlpkg.sb3 import VecEnvAdapter
 
-    venv = VecEnvAdapter("CartPole-v1", 4)
-    venv.seed(5)
+    # Same-step autoreset said explicitly is what the adapter uses anyway.
+    venv = VecEnvAdapter("CartPole-v1", 4, autoreset_mode="same_step")
+    assert venv.seed(5) == [5, 6, 7, 8]
     obs = venv.reset()
     assert obs.shape == (4, 4)
     seen = False
@@ -141,6 +142,52 @@ def test_sb3_adapter_reports_terminal_observations():
             assert not np.array_equal(infos[i]["terminal_observation"], obs[i])
     assert seen
     venv.close()
+
+
+def _sb3_adapter():
+    from rlpkg.sb3 import VecEnvAdapter
+
+    return VecEnvAdapter("CartPole-v1", 2)
+
+
+# Each kind of environment and an action of it.
+KINDS = {
+    "make_vec": (lambda: rlpkg.make_vec("CartPole-v1", 2), np.zeros(2, np.int64)),
+    "make": (lambda: rlpkg.make("CartPole-v1"), 0),
+    "sb3": (_sb3_adapter, np.zeros(2, np.int64)),
+}
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+@pytest.mark.parametrize("call", ["step", "reset"])
+def test_a_closed_environment_raises_gymnasiums_closed_environment_error(kind, call):
+    make, action = KINDS[kind]
+    env = make()
+    env.reset()
+    env.close()
+    env.close()  # closing twice is harmless
+    with pytest.raises(gymnasium.error.ClosedEnvironmentError, match=f"{call} after close: .* is closed"):
+        env.step(action) if call == "step" else env.reset()
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (
+            lambda a: type(a)("CartPole-v1", 2, autoreset_mode="next_step"),
+            ValueError,
+            "autoreset_mode='next_step': VecEnvAdapter always uses same-step autoreset",
+        ),
+        (lambda a: a.step_wait(), ValueError, r"step_wait: step_async\(actions\) was not called"),
+        (lambda a: a.seed("x"), TypeError, r"seed: expected None or an integer .*, got 'x' \(a str\)"),
+        (lambda a: a.seed(-1), ValueError, r"seed: expected None or an integer .*, got -1"),
+    ],
+)
+def test_sb3_adapter_refuses_misuse_by_name(call, error, message):
+    adapter = _sb3_adapter()
+    adapter.reset()
+    with pytest.raises(error, match=message):
+        call(adapter)
 
 
 def test_a_negative_or_non_integer_seed_raises_value_or_type_error():
@@ -166,10 +213,6 @@ def test_a_negative_or_non_integer_seed_raises_value_or_type_error():
         for bad, error in ((-1, ValueError), (2**40, ValueError), (True, TypeError), (1.5, TypeError)):
             with pytest.raises(error, match="num_threads="):
                 make(bad)
-    env.close()
-    for call in (env.reset, lambda: env.step(0)):
-        with pytest.raises(RuntimeError, match="after close"):
-            call()
 
 
 def test_spec_gives_the_time_limit_and_render_modes_are_refused():

@@ -138,3 +138,53 @@ def test_ray_map_chunks_are_whole_numbers():
     for bad in (True, 0, 1.5):
         with pytest.raises(ValueError, match="chunks="):
             RayMap(chunks=bad)
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, error, message",
+    [
+        ((1, -1, 0), {}, ValueError, r"steps: expected a number of steps >= 0, got -1 \(an int\)"),
+        ((1, 5, -1), {}, ValueError, r"seed: expected an integer in \[0, 2\*\*64 - 1\], got -1 \(an int\)"),
+        ((1, 5, None), {}, TypeError, r"seed: expected an integer .*, got None"),
+        ((1, 5, True), {}, TypeError, r"seed: expected an integer .*, got True \(a bool\)"),
+        ((2, 5, 2**64 - 1), {}, ValueError, r"seed=18446744073709551615: copy 1's seed"),
+        ((0, 5, 0), {}, ValueError, r"num_envs: expected an integer >= 1"),
+        ((1, 5, 0), {"config": "missing.toml"}, ValueError, "config= is for Transport-v0"),
+        ((1, 5, 0), {"autoreset_mode": ["same_step"]}, TypeError, r"autoreset_mode: .*, got \['same_step'\]"),
+    ],
+)
+def test_rollout_digest_refuses_bad_arguments_by_name(args, kwargs, error, message):
+    with pytest.raises(error, match=message):
+        rlpkg.rust_rollout_digest("CartPole-v1", *args, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (
+            lambda: rlpkg.make_vec("CartPole-v1", 2, autoreset_mode=["next_step"]),
+            TypeError,
+            r"autoreset_mode: expected one of .*, got \['next_step'\] \(a list\)",
+        ),
+        (
+            lambda: rlpkg.make_vec("Transport-v0", 1, config=5),
+            TypeError,
+            r"config: expected a path .*, got 5 \(an int\)",
+        ),
+        (lambda: rlpkg.make_vec("CartPole-v1", True), TypeError, r"num_envs: .*, got True \(a bool\)"),
+        (lambda: rlpkg.make_vec("CartPole-v1", 2, seed_stride=2.0), TypeError, r"seed_stride: .*, got 2.0"),
+        (
+            lambda: rlpkg.make_vec("CartPole-v1", 2).reset(options=[1, 2]),
+            TypeError,
+            r"options: expected None or a dict .*, got \[1, 2\] \(a list\)",
+        ),
+        (
+            lambda: rlpkg.make("CartPole-v1").reset(options=[1, 2]),
+            TypeError,
+            r"options: expected None or an empty dict, got \[1, 2\]",
+        ),
+    ],
+)
+def test_bad_arguments_are_named_with_what_was_expected(call, error, message):
+    with pytest.raises(error, match=message):
+        call()

@@ -100,6 +100,50 @@ def test_bad_paths_are_refused_by_name(rate_config, change, message):
         rlpkg.ProfileReference(rate_config, positions, tilts)
 
 
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda p, t: (p.astype(str), t), r"positions: expected a \(K, 3\) array of real .*, got an array of dtype <U"),
+        (lambda p, t: (p, None), r"tilts: expected a \(K,\) array of real numbers.*, got None \(a NoneType\)"),
+        (lambda p, t: (p > 0, t), r"positions: .*, got an array of dtype bool"),
+    ],
+)
+def test_paths_of_other_types_are_refused_by_name(rate_config, change, message):
+    with pytest.raises(TypeError, match=message):
+        rlpkg.ProfileReference(rate_config, *change(*lift_and_move()))
+
+
+@pytest.mark.parametrize(
+    "change",
+    [lambda p, t: (p.tolist(), t.tolist()), lambda p, t: (p.astype(np.float32), t.astype(np.float32))],
+    ids=["lists", "float32"],
+)
+def test_array_likes_are_converted_to_float64(rate_config, change):
+    positions, tilts = lift_and_move()
+    reference = rlpkg.ProfileReference(rate_config, positions, tilts)
+    converted = rlpkg.ProfileReference(rate_config, *change(positions, tilts))
+    assert converted.length_m == pytest.approx(reference.length_m, rel=1e-6)
+    assert converted.duration_s == pytest.approx(reference.duration_s, rel=1e-6)
+    assert converted.step(1.0) == pytest.approx(reference.step(1.0), rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda r: r.step("1"), r"action: expected a finite clock rate \(a number\), got '1' \(a str\)"),
+        (lambda r: r.step(True), r"action: .*, got True \(a bool\)"),
+        (lambda r: r.pose("1"), r"progress_m: expected an arc length along the path \(m\), got '1'"),
+        (lambda r: r.planned(None), r"t_s: expected a time along the plan \(s\), got None"),
+        (lambda r: r.tilt_offsets(0.0, "x"), r"action_z: expected a finite tilt offset \(rad\), got 'x'"),
+    ],
+)
+def test_arguments_of_other_types_are_refused_by_name(rate_config, call, message):
+    reference = rlpkg.ProfileReference(rate_config, *lift_and_move())
+    with pytest.raises(TypeError, match=message):
+        call(reference)
+    assert reference.progress_m == 0.0 and reference.rate == 1.0
+
+
 def test_a_config_without_the_profile_rate_table_is_refused(tmp_path):
     with pytest.raises(ValueError, match=r"transport\.profile_rate"):
         rlpkg.ProfileReference(SMALL_TRANSPORT, *lift_and_move())

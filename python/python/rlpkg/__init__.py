@@ -11,8 +11,14 @@
 """
 
 from rlpkg._env import RlpkgEnv, make
-from rlpkg._native import IDS, ProfileReference, __version__, rust_rollout_digest
-from rlpkg._vector import RlpkgVectorEnv, check_render_mode, default_transport_config, make_vec
+from rlpkg._native import IDS, ProfileReference, __version__
+from rlpkg._vector import (
+    RlpkgVectorEnv,
+    check_render_mode,
+    default_transport_config,
+    make_vec,
+    rust_rollout_digest,
+)
 
 __all__ = [
     "IDS",

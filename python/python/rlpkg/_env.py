@@ -17,7 +17,9 @@ from rlpkg._vector import (
     check_actions,
     check_id_and_config,
     check_num_threads,
+    check_options,
     check_render_mode,
+    open_core,
 )
 
 
@@ -81,22 +83,20 @@ class RlpkgEnv(gymnasium.Env):
             raise TypeError(f"seed={seed!r}: expected None or an integer >= 0")
         if seed is not None and not 0 <= seed <= MAX_SEED:
             raise ValueError(f"seed={seed}: expected an integer in [0, 2**64 - 1]")
-        if self._core is None:
-            raise RuntimeError("reset after close")
-        super().reset(seed=None if seed is None else int(seed))
-        if options:
+        core = open_core(self, "reset")
+        if check_options(options, "None or an empty dict"):
             raise ValueError(f"options: {sorted(options)}; {self.rlpkg_spec['id']} takes none")
+        super().reset(seed=None if seed is None else int(seed))
         args = {} if seed is None else {"seed": int(seed)}
-        obs, critic = self._core.reset(**args)
+        obs, critic = core.reset(**args)
         return self._observation(obs, critic), {}
 
     def step(self, action):
         """One step; ``info`` holds the environment's per-step values (Transport-v0's reward
         terms and episode outcomes) as floats."""
-        if self._core is None:
-            raise RuntimeError("step after close")
+        core = open_core(self, "step")
         flat = check_actions(action, self._discrete_n, self._action_shape)
-        obs, critic, rewards, terminated, truncated, _, _, info = self._core.step(flat)
+        obs, critic, rewards, terminated, truncated, _, _, info = core.step(flat)
         infos = {name: float(info[0, k]) for k, name in enumerate(self.info_names)}
         return (
             self._observation(obs, critic),

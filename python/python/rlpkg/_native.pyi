@@ -98,8 +98,8 @@ class ProfileReference:
     def __init__(
         self,
         config: str | PathLike[str],
-        positions: npt.NDArray[np.float64],
-        tilts: npt.NDArray[np.float64],
+        positions: npt.ArrayLike,
+        tilts: npt.ArrayLike,
     ) -> None: ...
     def step(self, action: float) -> tuple[float, float]: ...
     def pose(self, progress_m: float) -> tuple[list[float], float]: ...

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gymnasium.error import ClosedEnvironmentError
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from rlpkg import _native
+from rlpkg._checks import fail, whole
 from rlpkg._spaces import single_spaces
 
 TRANSPORT = "Transport-v0"
@@ -27,11 +30,11 @@ def mode_name(mode: str | AutoresetMode) -> str:
     """The native name of ``mode`` (a name like ``"next_step"`` or Gymnasium's enum)."""
     if isinstance(mode, AutoresetMode):
         return next(name for name, value in _MODES.items() if value == mode)
-    if mode in _MODES:
+    # Only a string is looked up: a list is unhashable, and no other type names a mode.
+    if isinstance(mode, str) and mode in _MODES:
         return mode
-    raise ValueError(
-        f"autoreset_mode={mode!r}: expected one of {sorted(_MODES)} or a gymnasium.vector.AutoresetMode"
-    )
+    expected = f"one of {sorted(_MODES)} or a gymnasium.vector.AutoresetMode"
+    raise fail("autoreset_mode", mode, expected, ValueError if isinstance(mode, str) else TypeError)
 
 
 def default_transport_config() -> Path:
@@ -54,6 +57,8 @@ def check_id_and_config(env_id: str, config: str | os.PathLike | None) -> str | 
     """Checks the id and returns the configuration path the core gets (Transport-v0 only)."""
     if env_id not in _native.IDS:
         raise ValueError(f"unknown environment id {env_id!r}: expected one of {list(_native.IDS)}")
+    if config is not None and not isinstance(config, (str, os.PathLike)):
+        raise fail("config", config, "a path (str or os.PathLike) to a transport TOML file", TypeError)
     if env_id != TRANSPORT:
         if config is not None:
             raise ValueError(f"config= is for {TRANSPORT}; {env_id} takes no configuration")
@@ -92,6 +97,16 @@ def check_actions(actions: Any, space_n: int | None, shape: tuple, low=None, hig
 
 # Seeds are unsigned 64-bit in the environment.
 MAX_SEED = 2**64 - 1
+
+# The most copies an environment takes (rlpkg_env::tasks::MAX_ENVS), checked before anything is
+# allocated.
+MAX_ENVS = 2**20
+
+
+def check_num_envs(num_envs: Any) -> int:
+    """``num_envs`` checked: an integer in [1, MAX_ENVS]."""
+    return whole("num_envs", num_envs, f"an integer >= 1 and at most {MAX_ENVS} copies", 1, MAX_ENVS)
+
 
 # More pool threads than this is a typo, not a machine (each is an OS thread).
 MAX_THREADS = 1024
@@ -143,6 +158,23 @@ def check_seeds(seed: Any, num_envs: int, seed_stride: int) -> dict:
     raise TypeError(f"seed={seed!r}: expected None, an integer or a list of integers")
 
 
+def check_options(options: Any, expected: str) -> dict:
+    """``reset``'s ``options`` (None or a mapping) as a fresh dict; ``expected`` says what it holds."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise fail("options", options, expected, TypeError)
+    return dict(options)
+
+
+def open_core(env: Any, call: str) -> Any:
+    """``env``'s native core; once ``env`` is closed, Gymnasium's ClosedEnvironmentError (what
+    its own AsyncVectorEnv raises) for ``call``."""
+    if env._core is None:
+        raise ClosedEnvironmentError(f"{call} after close: this {type(env).__name__} is closed; make a new one")
+    return env._core
+
+
 class RlpkgVectorEnv(VectorEnv):
     """``num_envs`` copies of an rlpkg environment stepped in Rust (see :func:`make_vec`).
 
@@ -161,21 +193,16 @@ class RlpkgVectorEnv(VectorEnv):
         num_threads: int | None = None,
         seed_stride: int = 1,
     ):
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs={num_envs!r}: expected an integer >= 1")
-        if isinstance(seed_stride, bool) or not isinstance(seed_stride, (int, np.integer)) or seed_stride < 1:
-            raise ValueError(f"seed_stride={seed_stride!r}: expected an integer >= 1")
+        num_envs = check_num_envs(num_envs)
+        seed_stride = whole("seed_stride", seed_stride, "an integer >= 1", 1)
         num_threads = check_num_threads(num_threads)
         mode = mode_name(autoreset_mode)
         path = check_id_and_config(env_id, config)
-        try:
-            self._core = _native.VecEnvCore(env_id, int(num_envs), path, mode, num_threads)
-        except OverflowError as e:  # beyond 64 bits: refused as any too large size is
-            raise ValueError(f"num_envs={num_envs}: expected at most 1048576 copies ({e})") from e
+        self._core = _native.VecEnvCore(env_id, num_envs, path, mode, num_threads)
         self.rlpkg_spec = self._core.spec()
-        self.num_envs = int(num_envs)
+        self.num_envs = num_envs
         self.obs_mode = obs_mode
-        self.seed_stride = int(seed_stride)
+        self.seed_stride = seed_stride
         self.single_observation_space, self.single_action_space = single_spaces(self.rlpkg_spec, obs_mode)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -199,13 +226,12 @@ class RlpkgVectorEnv(VectorEnv):
         """Restarts every copy, or those of ``options["reset_mask"]`` (a bool array, one per
         copy; the other rows keep their observations). ``seed``: an int (copy i from ``seed *
         seed_stride + i``), one int per copy, or None (each copy continues its random stream)."""
-        if self._core is None:
-            raise RuntimeError("reset after close")
+        core = open_core(self, "reset")
         # Checked before Gymnasium seeds its own generator, which raises its own error type.
         args = check_seeds(seed, self.num_envs, self.seed_stride)
+        options = check_options(options, "None or a dict of reset options ({'reset_mask': mask})")
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             super().reset(seed=int(seed))
-        options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if options:
             raise ValueError(f"options: unknown keys {sorted(options)}; expected only 'reset_mask'")
@@ -216,7 +242,7 @@ class RlpkgVectorEnv(VectorEnv):
                     f"reset_mask: dtype {mask.dtype}, shape {mask.shape}; expected bool of shape ({self.num_envs},)"
                 )
             args["mask"] = np.ascontiguousarray(mask)
-        obs, critic = self._core.reset(**args)
+        obs, critic = core.reset(**args)
         return self._observations(obs, critic), {}
 
     def step(self, actions):
@@ -224,10 +250,9 @@ class RlpkgVectorEnv(VectorEnv):
         ``info_names`` (one value per copy) with its ``_name`` mask; in same-step mode,
         ``final_obs`` and ``final_info`` of the copies that finished (masks ``_final_obs`` and
         ``_final_info``), as Gymnasium's ``SyncVectorEnv`` gives them."""
-        if self._core is None:
-            raise RuntimeError("step after close")
+        core = open_core(self, "step")
         flat = check_actions(actions, self._discrete_n, self._action_shape)
-        obs, critic, rewards, terminated, truncated, final_obs, final_critic, info = self._core.step(flat)
+        obs, critic, rewards, terminated, truncated, final_obs, final_critic, info = core.step(flat)
         infos: dict[str, Any] = {}
         everyone = np.ones(self.num_envs, dtype=bool)
         for k, name in enumerate(self.info_names):
@@ -292,3 +317,27 @@ def make_vec(
         num_threads=num_threads,
         seed_stride=seed_stride,
     )
+
+
+def rust_rollout_digest(
+    id: str,
+    num_envs: int,
+    steps: int,
+    seed: int,
+    config: str | os.PathLike | None = None,
+    autoreset_mode: str | AutoresetMode = "same_step",
+    num_threads: int | None = None,
+) -> int:
+    """The digest of ``steps`` scripted steps of ``num_envs`` copies of ``id`` after
+    ``reset(seed=seed)``, stepped in Rust only (``rlpkg_vec_env::digest``): the reference the tests
+    compare :func:`make_vec`'s stepping with. The arguments are checked as :func:`make_vec` checks
+    them (``config`` only for Transport-v0)."""
+    num_envs = check_num_envs(num_envs)
+    steps = whole("steps", steps, "a number of steps >= 0", 0, 2**64 - 1)
+    seed = whole("seed", seed, "an integer in [0, 2**64 - 1]", 0, MAX_SEED)
+    # Copy i starts from seed + i, all within 64 bits.
+    check_seeds(seed, num_envs, 1)
+    mode = mode_name(autoreset_mode)
+    num_threads = check_num_threads(num_threads)
+    path = check_id_and_config(id, config)
+    return _native.rust_rollout_digest(id, num_envs, steps, seed, path, mode, num_threads)

@@ -22,15 +22,42 @@ its batches of candidates evaluated here or, where one machine is not enough, as
 from __future__ import annotations
 
 import contextlib
+import math
+import numbers
 import os
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
 from rlpkg import _native
+from rlpkg._checks import fail, real
 
 __all__ = ["Objective", "RayMap", "sample_posterior"]
+
+
+def _seconds(name: str, value) -> float | None:
+    """A duration argument (``max_seconds``, ``horizon``) checked: None or a finite number of
+    seconds > 0."""
+    if value is None:
+        return None
+    return real(name, value, "a number of seconds > 0 (or None)", lambda s: s > 0 and math.isfinite(s))
+
+
+def _trajectory_ids(trajectories) -> list[str] | None:
+    """``trajectories`` checked: None, one id or a non-empty list of ids (strings)."""
+    if trajectories is None:
+        return None
+    if isinstance(trajectories, str):
+        return [trajectories]
+    expected = "None, a trajectory id or a list of at least one trajectory id (strings)"
+    ids = list(trajectories) if isinstance(trajectories, Iterable) else None
+    if ids is None or not all(isinstance(t, str) for t in ids):
+        raise fail("trajectories", trajectories, expected, TypeError)
+    if not ids:
+        # As the configuration's `trajectories = []` is refused; None keeps the configuration's.
+        raise fail("trajectories", trajectories, expected)
+    return ids
 
 
 class Objective:
@@ -47,10 +74,8 @@ class Objective:
         trajectories: Sequence[str] | None = None,
         max_seconds: float | None = None,
     ):
-        if isinstance(trajectories, str):
-            trajectories = [trajectories]
         self._core = _native.CalibrationObjective(
-            os.fspath(config), None if trajectories is None else list(trajectories), max_seconds
+            os.fspath(config), _trajectory_ids(trajectories), _seconds("max_seconds", max_seconds)
         )
         self.config = os.fspath(config)
 
@@ -78,21 +103,35 @@ class Objective:
         """The scene's own values of the parameters."""
         return self._core.base_values()
 
-    def vector(self, params: Mapping[str, float] | Sequence[float]) -> list[float]:
-        """A parameter vector from a mapping ``{name: value}`` (every name) or a sequence."""
+    def vector(self, params: Mapping[str, float] | Sequence[float], name: str = "params") -> list[float]:
+        """A parameter vector from a mapping ``{name: value}`` (every name) or a sequence of
+        numbers; ``name``: the argument errors name."""
         if isinstance(params, Mapping):
             missing = [n for n in self.names if n not in params]
             extra = sorted(set(params) - set(self.names))
             if missing or extra:
-                raise ValueError(f"params: missing {missing}, unknown {extra}; expected exactly {self.names}")
-            return [float(params[n]) for n in self.names]
-        return [float(v) for v in params]
+                raise ValueError(f"{name}: missing {missing}, unknown {extra}; expected exactly {self.names}")
+            return [real(f"{name}[{n!r}]", params[n], "a number") for n in self.names]
+        if isinstance(params, (str, bytes)) or not isinstance(params, Iterable):
+            expected = f"a parameter vector (one number per parameter of {self.names}) or a {{name: value}} mapping"
+            raise fail(name, params, expected, TypeError)
+        return [real(f"{name}[{k}]", v, "a number") for k, v in enumerate(params)]
+
+    def _batch(self, batch) -> list[list[float]]:
+        """``batch`` as parameter vectors: a list (or array) of vectors or mappings."""
+        one = isinstance(batch, (str, bytes, Mapping)) or not isinstance(batch, Iterable)
+        rows = [] if one else list(batch)
+        # A mapping or a flat list of numbers is one vector, not a batch: refused, not guessed.
+        if one or (rows and all(isinstance(row, numbers.Real) for row in rows)):
+            expected = "a list of parameter vectors or {name: value} mappings (for one, pass [params])"
+            raise fail("batch", batch, expected, TypeError)
+        return [self.vector(row, f"batch[{i}]") for i, row in enumerate(rows)]
 
     def evaluate(self, batch) -> list[dict[str, float]]:
         """Evaluates each parameter vector (or ``{name: value}`` mapping) of ``batch``; returns
         one ``{"loss", "chamfer_m", "object_mse_m2"}`` dict per entry. A diverged rollout gives
         a non-finite loss."""
-        return self._core.evaluate([self.vector(p) for p in batch])
+        return self._core.evaluate(self._batch(batch))
 
     def log_likelihoods(self, batch, horizon: float | None = None) -> list[dict[str, float]]:
         """The rows a sampled posterior of this configuration (its ``[smc]`` and ``[likelihood]``
@@ -101,7 +140,7 @@ class Objective:
         ``{"log_likelihood", "loss", "chamfer_m", "object_mse_m2", "site_mse_m2", "horizon_s"}``
         dict per entry, ``log_likelihood`` being the log's ``objective`` (``-inf`` when a rollout
         diverged)."""
-        return self._core.log_likelihoods([self.vector(p) for p in batch], horizon)
+        return self._core.log_likelihoods(self._batch(batch), _seconds("horizon", horizon))
 
     def __call__(self, params) -> float:
         """The loss of one parameter vector or mapping."""
@@ -127,7 +166,7 @@ def sample_posterior(
     ``Objective(config).log_likelihoods(candidates, horizon)`` (e.g. :class:`RayMap`). The polish
     and the Fisher information are a few sequential rollouts and always run here. An error raised by
     ``map_batches`` is the cause of the ``RuntimeError`` that names the batch; rows that do not fit
-    the batch are a ``ValueError`` naming it.
+    the batch (too few, a missing key, a value that is no number) are a ``ValueError`` naming it.
 
     Returns the summary of ``posterior.toml``: ``parameters`` (per parameter ``name``, ``lower_5``,
     ``median``, ``upper_95``, ``box_share``, ``best``), ``evaluations``, ``stages``,

@@ -14,9 +14,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rlpkg._vector import make_vec
+from rlpkg._checks import whole
+from rlpkg._vector import MAX_SEED, check_seeds, make_vec, mode_name
 
 __all__ = ["VecEnvAdapter"]
+
+# No step_async since the last step_wait (None is an action argument like any other).
+_NO_ACTIONS = object()
 
 
 @functools.cache
@@ -31,7 +35,13 @@ def _adapter_class():
         autoreset) behind Stable-Baselines3's ``VecEnv`` methods."""
 
         def __init__(self, env_id: str, num_envs: int, **kwargs: Any):
-            kwargs["autoreset_mode"] = "same_step"
+            # SB3's VecEnv contract is same-step autoreset: another mode would be silently wrong.
+            mode = kwargs.setdefault("autoreset_mode", "same_step")
+            if mode_name(mode) != "same_step":
+                raise ValueError(
+                    f"autoreset_mode={mode!r}: VecEnvAdapter always uses same-step autoreset "
+                    "(Stable-Baselines3's VecEnv contract); leave autoreset_mode out or pass 'same_step'"
+                )
             self.venv = make_vec(env_id, num_envs, **kwargs)
             spaces = (self.venv.single_observation_space, self.venv.single_action_space)
             if Base is object:
@@ -40,7 +50,7 @@ def _adapter_class():
                 self.render_mode = None
             else:
                 super().__init__(self.venv.num_envs, *spaces)
-            self._actions = None
+            self._actions = _NO_ACTIONS
             self._next_seed = None
 
         def reset(self):
@@ -50,15 +60,28 @@ def _adapter_class():
             return obs
 
         def seed(self, seed: int | None = None):
-            """Seeds the next reset: copy i from ``seed + i``."""
+            """Seeds the next reset: copy i from ``seed * seed_stride + i`` (``seed_stride`` of
+            :func:`rlpkg.make_vec`, default 1). Returns each copy's seed."""
+            if seed is None:
+                self._next_seed = None
+                return [None] * self.num_envs
+            # Checked here rather than at the next reset, which would not name this call.
+            seed = whole("seed", seed, "None or an integer in [0, 2**64 - 1]", 0, MAX_SEED)
+            stride = self.venv.seed_stride
+            check_seeds(seed, self.num_envs, stride)
             self._next_seed = seed
-            return [None if seed is None else seed + i for i in range(self.num_envs)]
+            return [seed * stride + i for i in range(self.num_envs)]
 
         def step_async(self, actions) -> None:
+            """Keeps ``actions`` for :meth:`step_wait` (the copies step there, in Rust)."""
             self._actions = actions
 
         def step_wait(self):
-            obs, rewards, terminated, truncated, info = self.venv.step(self._actions)
+            """Steps every copy with the actions of the last :meth:`step_async`."""
+            if self._actions is _NO_ACTIONS:
+                raise ValueError("step_wait: step_async(actions) was not called; call it first")
+            actions, self._actions = self._actions, _NO_ACTIONS
+            obs, rewards, terminated, truncated, info = self.venv.step(actions)
             dones = terminated | truncated
             infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
             for name in self.venv.info_names:
