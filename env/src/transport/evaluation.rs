@@ -14,47 +14,14 @@ use rlpkg_mocap::{Dataset, Split};
 use serde::Serialize;
 
 use super::governor::VacuumGovernor;
-use super::optimize_output::OptimizedCommand;
+use super::optimize::output::OptimizedCommand;
+use super::run_error::{check, RunError};
 use super::{
     load_paths, load_scene, recorded_timings, run_traced_episodes, spec_of, EpisodeTable,
     MotionLimits, OutcomeSummary, PathProfile, TiltSchedule, TracePoint, Transport,
     TransportConfig, TransportPath,
 };
-use crate::{EnvError, VecEnv};
-
-/// What stops an evaluation or an optimisation of the transport task.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// The user's input: a setting, a configuration, a recording or a file it names (the message
-    /// names it and what was expected).
-    #[error("{0}")]
-    Input(String),
-    /// The environment failed while running.
-    #[error(transparent)]
-    Env(#[from] EnvError),
-    /// The caller's stop request was seen between two control steps.
-    #[error("stopped on request")]
-    Stopped,
-    /// The policy could not choose actions.
-    #[error(transparent)]
-    Policy(Box<dyn std::error::Error + Send + Sync>),
-}
-
-impl RunError {
-    /// `err` as the user's input error (its text kept).
-    pub(crate) fn input(err: impl std::fmt::Display) -> Self {
-        RunError::Input(err.to_string())
-    }
-}
-
-/// `Err(RunError::Stopped)` once `stop` says so.
-pub(crate) fn check(stop: &dyn Fn() -> bool) -> Result<(), RunError> {
-    if stop() {
-        Err(RunError::Stopped)
-    } else {
-        Ok(())
-    }
-}
+use crate::VecEnv;
 
 /// The evaluated policy's actions for `n` rows of actor observations, its errors as [`RunError`]s.
 type Act<'a> = dyn Fn(&[f32], usize) -> Result<Vec<f32>, RunError> + 'a;

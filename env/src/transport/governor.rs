@@ -9,7 +9,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use super::evaluation::RunError;
+use super::run_error::RunError;
 use super::{ObservationMode, Transport, TransportConfig};
 use crate::{EnvSpec, VecEnv};
 

@@ -55,11 +55,11 @@
 //! - `reward`: failure, success, reward terms and the info row of a step;
 //! - `snapshot`: the saved state for checkpoints (serde; the flat layout is read too);
 //! - `outcome`: episode outcomes, traces, their summaries and the per-episode table;
+//! - `run_error`: what stops an evaluation or an optimisation, and the stop request's check;
+//! - `governor`: the vacuum governor, a closed-loop baseline on the task's own plan;
+//! - `optimize`: the cross-entropy method over an open-loop command's knots (`rlpkg optimize`),
+//!   its config and its files, and receding-horizon control (`rlpkg optimize --mpc`);
 //! - `evaluation`: a policy beside the baselines over the same seeded episodes (`rlpkg eval`);
-//! - `optimize`: the cross-entropy method over an open-loop command's knots (`rlpkg optimize`);
-//! - `optimize_config`: the config of `rlpkg optimize`;
-//! - `optimize_output`: the files of `rlpkg optimize`, and their reader;
-//! - `mpc`: receding-horizon control (`rlpkg optimize --mpc`);
 //! - `geometry`: vector and rotation helpers.
 
 mod config;
@@ -68,16 +68,14 @@ mod episode;
 mod evaluation;
 mod geometry;
 mod governor;
-mod mpc;
 mod observe;
 mod optimize;
-mod optimize_config;
-mod optimize_output;
 mod outcome;
 mod path;
 mod profile;
 mod recordings;
 mod reward;
+mod run_error;
 mod sensors;
 mod snapshot;
 #[cfg(test)]
@@ -97,22 +95,21 @@ pub use control::TiltSchedule;
 pub use episode::{replaced_packages_line, EpisodeConditions};
 pub use evaluation::{
     evaluate_policy, EpisodeFilm, EvaluationReport, EvaluationSettings, PolicyActions,
-    ProfileBaseline, RecordedBaseline, RecordingComparison, RecordingSet, RunError, Snapshot,
+    ProfileBaseline, RecordedBaseline, RecordingComparison, RecordingSet, Snapshot,
     TransportEvaluation,
 };
 pub use governor::VacuumGovernor;
-pub use mpc::{control_packages, HorizonSearch, RecedingHorizon};
 pub use observe::{
     critic_only_observations, spec_of, ACTOR_OBSERVATIONS, PRIVILEGED_MARKERS, WRIST_OBSERVATIONS,
 };
-pub use optimize::{
-    optimise_open_loop, Cem, CemSettings, CommandLibrary, KnotCurve, OpenLoopProblem, RiskMeasure,
-    ToolSample, ACTIONS,
-};
-pub use optimize_config::{CemTable, Conditions, Knots, MpcTable, OptimizeConfig, Risk};
-pub use optimize_output::{
+pub use optimize::cem::{Cem, CemSettings, RiskMeasure};
+pub use optimize::config::{CemTable, Conditions, Knots, MpcTable, OptimizeConfig, Risk};
+pub use optimize::curve::{CommandLibrary, KnotCurve, ACTIONS};
+pub use optimize::mpc::{control_packages, HorizonSearch, RecedingHorizon};
+pub use optimize::open_loop::{optimise_open_loop, OpenLoopProblem};
+pub use optimize::output::{
     library_summary_json, IterationCosts, LibraryEntry, MpcRun, OpenLoopResult, OptimizeSummary,
-    OptimizedCommand, OptimizedReadError, OUTPUT_FILES,
+    OptimizedCommand, OptimizedReadError, ToolSample, OUTPUT_FILES,
 };
 pub use outcome::{
     run_episodes, run_traced_episodes, Ending, EpisodeOutcome, EpisodeTable, OutcomeSummary,
@@ -124,6 +121,7 @@ pub use profile::{
 };
 pub use recordings::{load_paths, recorded_timings};
 pub use reward::{info_names, Failure, RewardTerms, StepOutcome, REWARD_TERM_NAMES};
+pub use run_error::RunError;
 pub use sensors::{
     cup_vacuum_pa, CupSeal, DelayLine, SensorConfig, SensorNoise, VacuumDynamics, LEAK_LOAD,
     LEAK_OPEN, LEAK_PEELED, LEAK_SEALED, MAX_DELAY_STEPS,

@@ -9,11 +9,13 @@
 
 use std::time::Instant;
 
-use super::evaluation::{check, RunError};
-use super::optimize::{Cem, CemSettings, CopyState, KnotCurve, ACTIONS};
-use super::optimize_config::{MpcTable, OptimizeConfig};
-use super::optimize_output::MpcRun;
-use super::{run_traced_episodes, OutcomeSummary, Transport, TransportConfig};
+use super::cem::{Cem, CemSettings};
+use super::config::{MpcTable, OptimizeConfig};
+use super::copy_state::CopyState;
+use super::curve::{KnotCurve, ACTIONS};
+use super::output::MpcRun;
+use crate::transport::run_error::{check, RunError};
+use crate::transport::{run_traced_episodes, OutcomeSummary, Transport, TransportConfig};
 use crate::{EnvError, VecEnv};
 
 /// The search of each control step.

@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::evaluation::RunError;
-use super::optimize::{CemSettings, KnotCurve};
-use super::TransportConfig;
+use super::cem::CemSettings;
+use super::curve::KnotCurve;
+use crate::transport::run_error::RunError;
+use crate::transport::TransportConfig;
 
 /// The optimisation config.
 #[derive(Debug, Clone, Deserialize, Serialize)]

@@ -9,9 +9,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use super::optimize::{CommandLibrary, KnotCurve, ToolSample};
-use super::optimize_config::OptimizeConfig;
-use super::OutcomeSummary;
+use super::config::OptimizeConfig;
+use super::curve::{CommandLibrary, KnotCurve};
+use crate::transport::OutcomeSummary;
 
 /// One iteration's costs (risk over the packages).
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -46,6 +46,20 @@ pub struct OptimizeSummary {
     pub iterations: Vec<IterationCosts>,
 }
 
+/// The tool at one control step of a rollout (world frame, SI).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ToolSample {
+    /// Time since the episode's start (s).
+    pub time_s: f64,
+    /// Tool-point position (m).
+    pub position: [f64; 3],
+    /// Orientation (x, y, z, w).
+    pub orientation: [f64; 4],
+    /// Linear velocity (m/s).
+    pub velocity: [f64; 3],
+    /// Angular velocity (rad/s).
+    pub angular_velocity: [f64; 3],
+}
 /// What one optimisation found, and how long it took.
 #[derive(Debug, Clone)]
 pub struct OpenLoopResult {
