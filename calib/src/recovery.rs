@@ -632,6 +632,7 @@ mod tests {
             seed: 1,
             mode_search: None,
             polish_iterations: 0,
+            chaos_replays: 0,
         };
         let weights = LossWeights {
             object: 1.0,

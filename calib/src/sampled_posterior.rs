@@ -296,8 +296,14 @@ pub struct SampledPosterior {
     pub search_generations: usize,
     /// Tempering steps.
     pub stages: usize,
-    /// Log evidence `ln ∫ prior · L` (up to the likelihood's constant).
+    /// Log evidence `ln ∫ prior · L^η` (up to the likelihood's constant).
     pub log_evidence: f64,
+    /// The likelihood's power `η` the sampler targeted (`smc.chaos_replays`; 1 without them).
+    pub likelihood_power: f64,
+    /// The log-likelihood's standard deviation over the replays of one material
+    /// (`smc.chaos_replays`), whose inverse is `η`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub chaos_log_likelihood_sd: Option<f64>,
     /// Independent residual coordinates of the package markers and of the object.
     pub independent_residuals: [f64; 2],
     /// Highest log-likelihood of the draws, or of the polished point when it is higher.
@@ -563,6 +569,8 @@ fn sample_with(
         search_generations: result.search.len(),
         stages: result.stages.len(),
         log_evidence: result.log_evidence,
+        likelihood_power: result.likelihood_power,
+        chaos_log_likelihood_sd: result.chaos_sd,
         independent_residuals: [likelihood.package_count, likelihood.object_count],
         best_log_likelihood,
         polished_evaluations,
@@ -730,6 +738,14 @@ pub fn posterior_table(posterior: &SampledPosterior) -> String {
             100.0 * p.box_share
         ));
     }
+    if let Some(sd) = posterior.chaos_log_likelihood_sd {
+        text.push_str(&format!(
+            "sampled prior x L^{:.4}: one material's replays, nudged by {:e} of the box, differ by a \
+             log-likelihood sd of {sd:.2}\n",
+            posterior.likelihood_power,
+            crate::smc::CHAOS_NUDGE
+        ));
+    }
     text
 }
 
@@ -789,6 +805,7 @@ mod tests {
                 first_horizon_s: Some(0.025),
             }),
             polish_iterations: 0,
+            chaos_replays: 2,
         }
     }
 

@@ -68,7 +68,20 @@ pub struct SmcSettings {
     /// when it is better than every draw.
     #[serde(default)]
     pub polish_iterations: usize,
+    /// Replays of the mode search's best point with every coordinate moved by at most
+    /// [`CHAOS_NUDGE`] of the box: their log-likelihoods differ only by what the simulator's own
+    /// sensitivity gives one material (a film that folds one way or another), which is no evidence
+    /// about the material. The sampler then targets the power posterior `prior · L^η` with
+    /// `η = min(1, 1 / sd)`, `sd` their standard deviation, so that what one material's replays
+    /// disagree by moves the tempered log-likelihood by one unit. 0 (the default): `η = 1`.
+    /// Needs a mode search.
+    #[serde(default)]
+    pub chaos_replays: usize,
 }
+
+/// How far [`SmcSettings::chaos_replays`] move each coordinate (share of the box): far below
+/// anything a recording resolves.
+pub const CHAOS_NUDGE: f64 = 1e-6;
 
 impl SmcSettings {
     /// "CMA-ES mode search (P x at most G generations), then " when the sampler has one, for a
@@ -153,10 +166,14 @@ pub struct SmcResult {
     pub stages: Vec<Stage>,
     /// Evaluations of the likelihood (simulated candidates).
     pub evaluations: usize,
-    /// Log of the model evidence estimate `ln ∫ prior · L` (sum of the stages' log mean weights).
+    /// Log of the model evidence estimate `ln ∫ prior · L^η` (sum of the stages' log mean weights).
     pub log_evidence: f64,
     /// The mode search's generations (empty without `mode_search`).
     pub search: Vec<Generation>,
+    /// The likelihood's power `η` the sampler targeted (1 without `chaos_replays`).
+    pub likelihood_power: f64,
+    /// The standard deviation of the log-likelihood over the `chaos_replays` replays of one point.
+    pub chaos_sd: Option<f64>,
 }
 
 /// A Gaussian approximation of the posterior at its mode, in the unit cube: `N(mode, F⁻¹)` with
@@ -237,6 +254,7 @@ pub fn sample_refined(
             .collect::<Vec<f64>>())
     };
     let mut search = Vec::new();
+    let (mut power, mut chaos) = (1.0, None);
     let reference = match &settings.mode_search {
         None => None,
         Some(mode) => {
@@ -252,7 +270,24 @@ pub fn sample_refined(
                 Some(laplace) => (laplace.mode, laplace.covariance),
                 None => (cma.mean(), cma.covariance()),
             };
-            let covariance = covariance * mode.reference_scale.powi(2);
+            if settings.chaos_replays > 0 {
+                let nudged: Vec<Vec<f64>> = (0..settings.chaos_replays)
+                    .map(|_| {
+                        best.iter()
+                            .map(|&v| {
+                                let u = 2.0 * rng.random::<f64>() - 1.0;
+                                (v + CHAOS_NUDGE * u).clamp(0.0, 1.0)
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let sd = chaos_sd(&evaluate(None, &nudged, &mut evaluations)?)?;
+                chaos = Some(sd);
+                power = (1.0 / sd).min(1.0);
+            }
+            // The power posterior is wider than the likelihood's by 1/√η (exactly so where it is
+            // Gaussian): the reference too.
+            let covariance = covariance * (mode.reference_scale.powi(2) / power);
             Some(Reference::new(mean, covariance, &mut rng)?)
         }
     };
@@ -263,7 +298,9 @@ pub fn sample_refined(
             .collect(),
         Some(r) => r.draw(n, &mut rng)?,
     };
-    let mut ll = evaluate(None, &particles, &mut evaluations)?;
+    // From here on the sampler sees `η · ln L`.
+    let tempered = |values: Vec<f64>| values.into_iter().map(|v| power * v).collect::<Vec<f64>>();
+    let mut ll = tempered(evaluate(None, &particles, &mut evaluations)?);
     let mut lq: Vec<f64> = particles.iter().map(|p| log_reference(p)).collect();
     let mut beta = 0.0;
     let mut scale = 2.38 / (dim as f64).sqrt();
@@ -305,7 +342,7 @@ pub fn sample_refined(
             &mut scale,
             settings.moves,
             &mut rng,
-            &mut |p| evaluate(None, p, &mut evaluations),
+            &mut |p| evaluate(None, p, &mut evaluations).map(tempered),
         )?;
         stages.push(Stage {
             beta,
@@ -313,7 +350,7 @@ pub fn sample_refined(
             acceptance,
             scale,
             evaluations,
-            best_log_likelihood: ll.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            best_log_likelihood: ll.iter().copied().fold(f64::NEG_INFINITY, f64::max) / power,
         });
     }
     if settings.final_moves > 0 {
@@ -329,7 +366,7 @@ pub fn sample_refined(
             &mut scale,
             settings.final_moves,
             &mut rng,
-            &mut |p| evaluate(None, p, &mut evaluations),
+            &mut |p| evaluate(None, p, &mut evaluations).map(tempered),
         )?;
         stages.push(Stage {
             beta: 1.0,
@@ -337,17 +374,36 @@ pub fn sample_refined(
             acceptance,
             scale,
             evaluations,
-            best_log_likelihood: ll.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            best_log_likelihood: ll.iter().copied().fold(f64::NEG_INFINITY, f64::max) / power,
         });
     }
     Ok(SmcResult {
         draws: particles,
-        log_likelihoods: ll,
+        log_likelihoods: ll.into_iter().map(|v| v / power).collect(),
         stages,
         evaluations,
         log_evidence,
         search,
+        likelihood_power: power,
+        chaos_sd: chaos,
     })
+}
+
+/// The standard deviation of the finite log-likelihoods of one point's nudged replays (a replay
+/// that diverged says nothing about the spread of those that did not).
+fn chaos_sd(values: &[f64]) -> Result<f64, SmcError> {
+    let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if finite.len() < 2 {
+        return Err(SmcError::Likelihood(format!(
+            "{} of the {} replays of the mode search's best point have a finite likelihood: no \
+             spread to measure",
+            finite.len(),
+            values.len()
+        )));
+    }
+    let n = finite.len() as f64;
+    let mean = finite.iter().sum::<f64>() / n;
+    Ok((finite.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt())
 }
 
 /// Runs the CMA-ES search from the cube's centre, logging each generation into `search`; returns
@@ -517,6 +573,15 @@ pub fn check_settings(dim: usize, s: &SmcSettings) -> Result<(), SmcError> {
     }
     if let Some(mode) = &s.mode_search {
         cmaes::check_settings(dim, mode).map_err(SmcError::Settings)?;
+    }
+    if s.chaos_replays == 1 || s.chaos_replays > 10_000 {
+        return fail(format!(
+            "chaos_replays = {}: expected 0 (off) or 2..=10000",
+            s.chaos_replays
+        ));
+    }
+    if s.chaos_replays > 0 && s.mode_search.is_none() {
+        return fail("chaos_replays needs [smc.mode_search]: they replay its best point".into());
     }
     Ok(())
 }
@@ -689,6 +754,7 @@ mod tests {
             seed,
             mode_search: None,
             polish_iterations: 0,
+            chaos_replays: 0,
         }
     }
 
@@ -844,6 +910,68 @@ mod tests {
             "{} vs {exact}",
             result.log_evidence
         );
+    }
+
+    /// A narrow Gaussian log-likelihood (sd 0.004 around (0.4, 0.6)) plus a term of standard
+    /// deviation `tau` that changes completely between points a bit apart (a hash of their bits),
+    /// as a film that folds one way or another: a rough likelihood whose roughness is known.
+    fn chaotic(p: &[f64], tau: f64) -> f64 {
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        for v in p {
+            h = (h ^ v.to_bits()).wrapping_mul(0x100_0000_01b3);
+            h ^= h >> 29;
+        }
+        let u = (h >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0;
+        let (a, b) = ((p[0] - 0.4) / 0.004, (p[1] - 0.6) / 0.004);
+        -0.5 * (a * a + b * b) + tau * 3f64.sqrt() * u
+    }
+
+    #[test]
+    fn chaos_replays_measure_the_roughness_and_sample_the_power_posterior() {
+        let tau = 100.0;
+        let with = |chaos_replays| SmcSettings {
+            particles: 400,
+            chaos_replays,
+            mode_search: Some(ModeSearchSettings {
+                population: 12,
+                generations: 100,
+                initial_step: 0.3,
+                reference_scale: 2.0,
+                first_horizon_s: None,
+            }),
+            ..settings(6)
+        };
+        let run = |s: &SmcSettings| {
+            sample(2, s, 1.0, |_, _, points| {
+                Ok(points.iter().map(|p| chaotic(p, tau)).collect())
+            })
+            .unwrap()
+        };
+        let sd = |r: &SmcResult, a: usize| {
+            let n = r.draws.len() as f64;
+            let m = r.draws.iter().map(|p| p[a]).sum::<f64>() / n;
+            (r.draws.iter().map(|p| (p[a] - m).powi(2)).sum::<f64>() / n).sqrt()
+        };
+        let powered = run(&with(64));
+        // The replays' spread is the known roughness, η its inverse.
+        let chaos = powered.chaos_sd.unwrap();
+        assert!((chaos / tau - 1.0).abs() < 0.25, "chaos sd {chaos}");
+        assert_eq!(powered.likelihood_power, 1.0 / chaos);
+        // The power posterior of a Gaussian likelihood is Gaussian, 1/√η as wide.
+        let expected = 0.004 / powered.likelihood_power.sqrt();
+        for a in 0..2 {
+            let s = sd(&powered, a);
+            assert!(
+                (s / expected - 1.0).abs() < 0.3,
+                "sd {a}: {s} against {expected}"
+            );
+        }
+        // Without the replays the sampler chases the roughness: a posterior far narrower than
+        // what one material's replays allow.
+        let plain = run(&with(0));
+        assert_eq!((plain.likelihood_power, plain.chaos_sd), (1.0, None));
+        assert!(sd(&plain, 0) < 0.3 * expected, "{}", sd(&plain, 0));
+        assert!(powered.log_likelihoods.iter().all(|v| v.is_finite()));
     }
 
     #[test]
