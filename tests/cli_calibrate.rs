@@ -319,6 +319,7 @@ particles = 8
 moves = 1
 seed = 4
 polish_iterations = 2
+chaos_replays = 2
 
 [smc.mode_search]
 population = 4
@@ -358,6 +359,8 @@ fn samples_a_posterior_on_the_simulator_and_resumes_it_exactly() {
         stdout.contains("candidates simulated") && stdout.contains("eigen-directions"),
         "{stdout}"
     );
+    // The likelihood's power, from the spread of the mode search's best point replayed twice.
+    assert!(stdout.contains("sampled prior x L^"), "{stdout}");
     // HHHHH's markers are tracked through the 30 frames and tied to the simulated sites.
     assert!(
         stdout.contains("HHHHH: 26 markers tracked from the first frame")
