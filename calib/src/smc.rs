@@ -744,6 +744,21 @@ fn metropolis(
 mod tests {
     use super::*;
 
+    /// A mode search of `population` x at most `generations`, from the default step.
+    fn search(
+        population: usize,
+        generations: usize,
+        first_horizon_s: Option<f64>,
+    ) -> ModeSearchSettings {
+        ModeSearchSettings {
+            population,
+            generations,
+            initial_step: 0.3,
+            reference_scale: 2.0,
+            first_horizon_s,
+        }
+    }
+
     fn settings(seed: u64) -> SmcSettings {
         SmcSettings {
             particles: 2000,
@@ -761,25 +776,15 @@ mod tests {
     #[test]
     fn the_mode_search_is_described_with_its_horizons() {
         assert_eq!(settings(0).mode_search_text(), "");
-        let search = ModeSearchSettings {
-            population: 16,
-            generations: 50,
-            initial_step: 0.3,
-            reference_scale: 2.0,
-            first_horizon_s: None,
-        };
         let mut with = SmcSettings {
-            mode_search: Some(search),
+            mode_search: Some(search(16, 50, None)),
             ..settings(0)
         };
         assert_eq!(
             with.mode_search_text(),
             "CMA-ES mode search (16 x at most 50 generations), then "
         );
-        with.mode_search = Some(ModeSearchSettings {
-            first_horizon_s: Some(0.5),
-            ..search
-        });
+        with.mode_search = Some(search(16, 50, Some(0.5)));
         assert!(with
             .mode_search_text()
             .contains("generations per horizon, from the first 0.5 s doubling"));
@@ -878,13 +883,7 @@ mod tests {
     fn started_from_a_mode_search_it_recovers_the_posterior_and_its_evidence() {
         let searched = SmcSettings {
             particles: 1000,
-            mode_search: Some(ModeSearchSettings {
-                population: 12,
-                generations: 100,
-                initial_step: 0.3,
-                reference_scale: 2.0,
-                first_horizon_s: None,
-            }),
+            mode_search: Some(search(12, 100, None)),
             ..settings(4)
         };
         let result = sample(2, &searched, 1.0, |_, _, points| {
@@ -932,13 +931,7 @@ mod tests {
         let with = |chaos_replays| SmcSettings {
             particles: 400,
             chaos_replays,
-            mode_search: Some(ModeSearchSettings {
-                population: 12,
-                generations: 100,
-                initial_step: 0.3,
-                reference_scale: 2.0,
-                first_horizon_s: None,
-            }),
+            mode_search: Some(search(12, 100, None)),
             ..settings(6)
         };
         let run = |s: &SmcSettings| {
@@ -990,13 +983,7 @@ mod tests {
             particles: 64,
             moves: 4,
             final_moves: 8,
-            mode_search: Some(ModeSearchSettings {
-                population: 16,
-                generations: 300,
-                initial_step: 0.3,
-                reference_scale: 2.0,
-                first_horizon_s: None,
-            }),
+            mode_search: Some(search(16, 300, None)),
             ..settings(2)
         };
         let result = sample(10, &searched, 1.0, |_, _, points| {
@@ -1043,13 +1030,7 @@ mod tests {
             particles: 32,
             moves: 2,
             final_moves: 2,
-            mode_search: Some(ModeSearchSettings {
-                population: 16,
-                generations: 8,
-                initial_step: 0.3,
-                reference_scale: 2.0,
-                first_horizon_s: None,
-            }),
+            mode_search: Some(search(16, 8, None)),
             ..settings(8)
         };
         let run = |refined: bool| {
@@ -1131,13 +1112,7 @@ mod tests {
             particles: 64,
             moves: 4,
             final_moves: 4,
-            mode_search: Some(ModeSearchSettings {
-                population: 12,
-                generations: 100,
-                initial_step: 0.3,
-                reference_scale: 2.0,
-                first_horizon_s,
-            }),
+            mode_search: Some(search(12, 100, first_horizon_s)),
             ..settings(5)
         };
         let run = |settings: &SmcSettings| {
