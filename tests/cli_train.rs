@@ -283,6 +283,65 @@ fn set_overrides_are_stored_in_the_run_and_bad_ones_exit_with_code_2() {
 }
 
 #[test]
+fn a_config_that_extends_another_runs_as_the_merged_file() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("tiny.toml"), TINY_CARTPOLE).unwrap();
+    std::fs::create_dir(dir.path().join("jobs")).unwrap();
+    let job = "extends = \"../tiny.toml\"\n[run]\nseed = 7\n[ppo]\nlearning_rate = 1e-4\n";
+    std::fs::write(dir.path().join("jobs/job.toml"), job).unwrap();
+    let train = [
+        "train",
+        "jobs/job.toml",
+        "--name",
+        "ext",
+        "--quiet",
+        "--no-export",
+    ];
+    let out = rlpkg(&[&train[..], &["--stop-after", "1"]].concat(), dir.path());
+    let stored_path = dir.path().join("runs/ext/config.toml");
+    let stored = std::fs::read_to_string(&stored_path)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stderr)));
+    // The run keeps the merged configuration, which names no base.
+    let table: toml::Table = stored.parse().unwrap();
+    assert!(!table.contains_key("extends"), "{stored}");
+    assert_eq!(table["run"]["seed"].as_integer(), Some(7));
+    assert_eq!(table["ppo"]["learning_rate"].as_float(), Some(1e-4));
+    assert_eq!(table["ppo"]["epochs"].as_integer(), Some(2));
+    assert!(stored.starts_with("# jobs/job.toml, merged with its bases (jobs/../tiny.toml)"));
+    // So a base edited later changes neither the resumed run nor what it stores.
+    common::edit(&dir.path().join("tiny.toml"), "epochs = 2", "epochs = 3");
+    ok(&rlpkg(
+        &["train", "--resume", "runs/ext", "--quiet", "--no-export"],
+        dir.path(),
+    ));
+    assert_eq!(std::fs::read_to_string(&stored_path).unwrap(), stored);
+
+    // A bad chain or a bad value in it: exit 2, the file and the key named, nothing written.
+    for (text, expected) in [
+        (
+            "extends = \"nowhere.toml\"\n",
+            "jobs/bad.toml: key `extends` = \"nowhere.toml\"",
+        ),
+        (
+            "extends = [\"../tiny.toml\"]\n",
+            "key `extends` = [\"../tiny.toml\"]: expected the path",
+        ),
+        ("extends = \"bad.toml\"\n", "already in the chain"),
+        (
+            "extends = \"../tiny.toml\"\n[ppo]\nlearning_rate = \"abc\"\n",
+            "key `ppo.learning_rate`",
+        ),
+    ] {
+        std::fs::write(dir.path().join("jobs/bad.toml"), text).unwrap();
+        let stderr = refused(&["train", "jobs/bad.toml", "--name", "bad"], dir.path());
+        assert!(stderr.contains(expected), "{text}: {stderr}");
+        assert!(!dir.path().join("runs/bad").exists(), "{text}");
+    }
+    let stderr = refused(&["train", "jobs/bad.toml", "--name", "bad"], dir.path());
+    assert!(stderr.contains("extending jobs/../tiny.toml"), "{stderr}");
+}
+
+#[test]
 fn transport_trains_on_the_shipped_posterior_draws() {
     // The shipped posterior configs shrunk, reading their draws from data/posteriors: the loader
     // checks them against the calibration their summary.json names (a path from the working

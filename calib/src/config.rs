@@ -21,15 +21,8 @@ pub use rlpkg_replay::PARAMETER_NAMES;
 /// A configuration error: file, key and what was expected.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    /// The file could not be read.
-    #[error("{file}: {source}")]
-    Read {
-        /// The configuration file.
-        file: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
-    /// TOML syntax, an unknown key or a wrong type (the message names the key and line).
+    /// The file (or one it extends) could not be read; TOML syntax, an unknown key or a wrong
+    /// type (the message names the key and line).
     #[error("{file}: {message}")]
     Parse {
         /// The configuration file.
@@ -148,13 +141,31 @@ pub struct CalibrateConfig {
 }
 
 impl CalibrateConfig {
-    /// Reads and validates a configuration file.
+    /// Reads and validates a configuration file, with the files it extends merged in
+    /// ([`rlpkg_toml_input::read_composed`]: `extends = "base.toml"`).
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            file: path.to_path_buf(),
-            source,
+        let composed = rlpkg_toml_input::read_composed(path).map_err(|e| ConfigError::Parse {
+            file: e.file().to_path_buf(),
+            message: e.message(),
         })?;
-        Self::parse(&text, path)
+        if !composed.is_merged() {
+            return Self::parse(&composed.text, path);
+        }
+        // The merged text's line numbers are none of the files': name the key and the chain.
+        Self::parse(&composed.text, path).map_err(|err| match err {
+            ConfigError::Parse { file, .. } => {
+                let text = &composed.text;
+                let message = match toml::from_str::<CalibrateConfig>(text) {
+                    Err(e) => rlpkg_toml_input::error_at(text, &e).1,
+                    Ok(_) => "not a calibration configuration".into(),
+                };
+                ConfigError::Parse {
+                    file,
+                    message: format!("{message} (in {}, merged)", composed.chain()),
+                }
+            }
+            other => other,
+        })
     }
 
     /// Parses and validates configuration text; `file` names it in errors.
@@ -781,5 +792,37 @@ upper = 2.0
             .unwrap();
         assert_ne!(own.integrator.iterations, 48);
         assert_eq!(more.integrator.iterations, 48);
+    }
+
+    #[test]
+    fn a_config_extends_another_and_is_checked_merged() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("base.toml"), GOOD).unwrap();
+        let stage = "extends = \"base.toml\"\nout_dir = \"runs/stage2\"\n[optimiser]\nseed = 4\n[[param]]\nname = \"mu_con\"\nlower = 0.5\nupper = 1.5\n";
+        std::fs::write(dir.path().join("stage2.toml"), stage).unwrap();
+        let merged = CalibrateConfig::load(&dir.path().join("stage2.toml")).unwrap();
+        let mut expected = parse(GOOD).unwrap();
+        expected.out_dir = "runs/stage2".into();
+        expected.optimiser.as_mut().unwrap().seed = 4;
+        // The parameter list is replaced whole, not merged entry by entry.
+        expected.params = vec![ParamSpec {
+            lower: 0.5,
+            upper: 1.5,
+            ..expected.params[1].clone()
+        }];
+        assert_eq!(merged, expected);
+        // A bad value in the chain names the key and both files.
+        std::fs::write(
+            dir.path().join("bad.toml"),
+            "extends = \"base.toml\"\n[sim]\nbetween = \"x\"\n",
+        )
+        .unwrap();
+        let err = CalibrateConfig::load(&dir.path().join("bad.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("key `sim.between`") && err.contains("extending"),
+            "{err}"
+        );
     }
 }

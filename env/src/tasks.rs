@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use rlpkg_toml_input::find_relative;
+use rlpkg_toml_input::{find_relative, read_composed};
 use rlpkg_vec_env::{cartpole, pendulum, CartPole, EnvError, EnvSpec, Pendulum, VecEnv};
 
 use crate::transport::{self, Transport, TransportConfig};
@@ -206,18 +206,14 @@ pub fn read_transport_config(path: &Path) -> Result<TransportConfig, EnvError> {
     TransportConfig::from_table(&table, &path.display().to_string())
 }
 
-/// The `[transport]` table of the configuration file at `path`, its relative paths found as the
-/// CLI finds them; `None` when it has none.
+/// The `[transport]` table of the configuration file at `path` (the files it extends merged in,
+/// [`read_composed`]), its relative paths found as the CLI finds them; `None` when it has none.
 fn transport_table(path: &Path) -> Result<Option<toml::Table>, EnvError> {
-    let fail = |message: String| EnvError::ConfigParse {
-        file: path.display().to_string(),
-        message,
-    };
-    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
-    let file: toml::Table = text
-        .parse()
-        .map_err(|e: toml::de::Error| fail(e.to_string()))?;
-    Ok(match file.get(TRANSPORT_TABLE) {
+    let composed = read_composed(path).map_err(|e| EnvError::ConfigParse {
+        file: e.file().display().to_string(),
+        message: e.message(),
+    })?;
+    Ok(match composed.table.get(TRANSPORT_TABLE) {
         Some(toml::Value::Table(table)) => Some(with_paths_found(table, path)),
         _ => None,
     })
@@ -231,7 +227,9 @@ fn unknown(id: &str) -> EnvError {
 }
 
 /// The files and folders the configuration file at `path` names (a transport task's scene,
-/// recordings and posterior, each found as the task finds it); none for a task without any.
+/// recordings and posterior, each found as the task finds it); none for a task without any. The
+/// files it extends are not among them: a run keeps the merged configuration, so it never reads
+/// them again.
 pub fn named_files(path: &Path) -> Result<Vec<PathBuf>, EnvError> {
     let Some(mut table) = transport_table(path)? else {
         return Ok(Vec::new());

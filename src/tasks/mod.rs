@@ -6,8 +6,7 @@
 use std::path::Path;
 
 use rlpkg_agents::config::{
-    config_hash, parse_toml, read_config_text, NormalizationConfig, PolicyConfig, PpoConfig,
-    RunConfig,
+    config_hash, parse_toml, NormalizationConfig, PolicyConfig, PpoConfig, RunConfig,
 };
 use rlpkg_agents::runners::run_config_path;
 use rlpkg_agents::{AgentError, TrainConfig, Trainer};
@@ -19,6 +18,7 @@ use crate::overrides::{self, Override};
 
 pub use rlpkg_env::tasks::Task;
 use rlpkg_env::tasks::TaskError;
+use rlpkg_toml_input::{read_composed, ComposeError, Composed};
 
 /// A training configuration file as written: the learner's sections beside the task's table
 /// (the field order is the order messages list the sections in).
@@ -46,10 +46,33 @@ pub struct Training {
 }
 
 impl Training {
-    /// Reads and checks the training configuration at `path`.
+    /// Reads and checks the training configuration at `path`, with the files it extends merged
+    /// in ([`rlpkg_toml_input::read_composed`]).
     pub fn load(path: &Path) -> Result<Self, AgentError> {
-        let text = read_config_text(path)?;
-        Self::parse(text, path)
+        let composed = read_composed(path).map_err(compose_error)?;
+        Self::parse_composed(composed, path)
+    }
+
+    /// [`Training::parse`] of a composed configuration. The merged text's line numbers are none
+    /// of the files', so its errors name the key and the chain of files instead.
+    fn parse_composed(composed: Composed, path: &Path) -> Result<Self, AgentError> {
+        if !composed.is_merged() {
+            return Self::parse(composed.text, path);
+        }
+        let (text, chain) = (composed.text.clone(), composed.chain());
+        Self::parse(composed.text, path).map_err(|err| match err {
+            AgentError::ConfigParse { .. } => {
+                let message = match toml::from_str::<TrainingFile>(&text) {
+                    Err(e) => rlpkg_toml_input::error_at(&text, &e).1,
+                    Ok(_) => err.to_string(),
+                };
+                AgentError::ConfigParse {
+                    path: path.into(),
+                    message: format!("{message} (in {chain}, merged)"),
+                }
+            }
+            other => other,
+        })
     }
 
     /// The configuration at `path` with the `--set` overrides applied, checked like a file. A
@@ -58,7 +81,10 @@ impl Training {
         if sets.is_empty() {
             return Self::load(path).map_err(agent_error);
         }
-        let text = read_config_text(path).map_err(agent_error)?;
+        let text = read_composed(path)
+            .map_err(compose_error)
+            .map_err(agent_error)?
+            .text;
         let source = path.display().to_string();
         let with_first = |n: usize| overrides::apply(&text, &source, &sets[..n]);
         let err = match Self::parse(with_first(sets.len()).map_err(input_error)?, path) {
@@ -140,6 +166,15 @@ impl Training {
     pub fn trainer(self) -> Result<Trainer, AgentError> {
         let env = self.task.build(self.config.run.num_envs)?;
         Trainer::new(self.config, self.text, env)
+    }
+}
+
+/// A configuration that could not be composed, as the learner reports a file it cannot parse:
+/// the file at fault and what is wrong with it.
+fn compose_error(e: ComposeError) -> AgentError {
+    AgentError::ConfigParse {
+        path: e.file().into(),
+        message: e.message(),
     }
 }
 

@@ -99,13 +99,15 @@ pub fn ok(output: &Output) -> String {
     String::from_utf8(output.stdout.clone()).unwrap()
 }
 
-/// The shipped training config `configs/train/<name>`, shrunk for a test: paths made absolute,
-/// 2 copies, rollouts of 8 steps in 2 minibatches, `total_steps` steps, episodes of
-/// `time_limit_s`, one settled variant settled for 0.1 s.
+/// The shipped training config `configs/train/<name>` (merged with the files it extends), shrunk
+/// for a test: paths made absolute, 2 copies, rollouts of 8 steps in 2 minibatches, `total_steps`
+/// steps, episodes of `time_limit_s`, one settled variant settled for 0.1 s.
 pub fn tiny_training(name: &str, total_steps: u64, time_limit_s: &str) -> String {
     let root = env!("CARGO_MANIFEST_DIR");
-    let text = std::fs::read_to_string(format!("{root}/configs/train/{name}"))
+    let path = PathBuf::from(format!("{root}/configs/train/{name}"));
+    let text = rlpkg_toml_input::read_composed(&path)
         .unwrap()
+        .text
         .replace("scene = \"configs/", &format!("scene = \"{root}/configs/"))
         .replace(
             "recordings = \"data/",
@@ -124,6 +126,8 @@ pub fn tiny_training(name: &str, total_steps: u64, time_limit_s: &str) -> String
         )
         .replace("settled_variants = 16 ", "settled_variants = 1 ")
         .replace("settled_variants = 128 ", "settled_variants = 1 ")
+        .replace("settled_variants = 16\n", "settled_variants = 1\n")
+        .replace("settled_variants = 128\n", "settled_variants = 1\n")
         .replace("settle_s = 0.5", "settle_s = 0.1");
     for expected in [
         format!("total_steps = {total_steps}"),

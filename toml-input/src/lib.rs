@@ -7,6 +7,8 @@
 //! `grid = [16, 19, 3]` would silently run as 16 x 19. Read such fields through
 //! `#[serde(deserialize_with = "rlpkg_toml_input::array")]` (or `option`, `list`, `map`); the
 //! parser's message then says `invalid length 3, expected an array of length 2` at the key's line.
+//!
+//! Configurations compose: `extends = "base.toml"` starts a file from another ([`read_composed`]).
 
 #![warn(missing_docs)]
 
@@ -14,6 +16,12 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Deserializer};
+
+mod compose;
+
+pub use compose::{
+    merge, read_composed, ComposeError, Composed, EXTENDS, MAX_DEPTH, MAX_FILE_BYTES,
+};
 
 /// An array read through a `Vec`, so that its length is checked.
 struct Exact<T, const N: usize>([T; N]);

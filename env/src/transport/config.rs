@@ -1065,8 +1065,9 @@ mod tests {
             let path = format!("{root}/configs/train/{name}");
             // A posterior names its calibration config relative to the repository root, which is
             // not the tests' working folder; the posterior loader's own tests read one.
-            let text = std::fs::read_to_string(&path)
+            let text = rlpkg_toml_input::read_composed(Path::new(&path))
                 .unwrap()
+                .text
                 .replace("\"data/", &format!("\"{root}/data/"))
                 .replace("posterior = ", "# posterior = ");
             let config = TransportConfig::from_toml_str(&text, &path).unwrap();
