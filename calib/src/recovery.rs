@@ -633,6 +633,7 @@ mod tests {
             mode_search: None,
             polish_iterations: 0,
             chaos_replays: 0,
+            chaos_points: 1,
         };
         let weights = LossWeights {
             object: 1.0,

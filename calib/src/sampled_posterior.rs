@@ -304,6 +304,9 @@ pub struct SampledPosterior {
     /// (`smc.chaos_replays`), whose inverse is `η`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub chaos_log_likelihood_sd: Option<f64>,
+    /// The mode search's good points the chaos replays shared (`smc.chaos_points`; 0 without
+    /// replays).
+    pub chaos_points: usize,
     /// Independent residual coordinates of the package markers and of the object.
     pub independent_residuals: [f64; 2],
     /// Highest log-likelihood of the draws, or of the polished point when it is higher.
@@ -571,6 +574,7 @@ fn sample_with(
         log_evidence: result.log_evidence,
         likelihood_power: result.likelihood_power,
         chaos_log_likelihood_sd: result.chaos_sd,
+        chaos_points: result.chaos_points,
         independent_residuals: [likelihood.package_count, likelihood.object_count],
         best_log_likelihood,
         polished_evaluations,
@@ -739,9 +743,18 @@ pub fn posterior_table(posterior: &SampledPosterior) -> String {
         ));
     }
     if let Some(sd) = posterior.chaos_log_likelihood_sd {
+        let whose = match posterior.chaos_points {
+            1 => "one material's replays".to_string(),
+            k => format!("each of {k} good materials' replays"),
+        };
+        let pooled = if posterior.chaos_points > 1 {
+            "pooled "
+        } else {
+            ""
+        };
         text.push_str(&format!(
-            "sampled prior x L^{:.4}: one material's replays, nudged by {:e} of the box, differ by a \
-             log-likelihood sd of {sd:.2}\n",
+            "sampled prior x L^{:.4}: {whose}, nudged by {:e} of the box, differ by a \
+             {pooled}log-likelihood sd of {sd:.2}\n",
             posterior.likelihood_power,
             crate::smc::CHAOS_NUDGE
         ));
@@ -806,6 +819,7 @@ mod tests {
             }),
             polish_iterations: 0,
             chaos_replays: 2,
+            chaos_points: 1,
         }
     }
 

@@ -77,6 +77,17 @@ pub struct SmcSettings {
     /// Needs a mode search.
     #[serde(default)]
     pub chaos_replays: usize,
+    /// How many of the mode search's good points the chaos replays share (each takes
+    /// `chaos_replays / chaos_points` of them): the best point of each of the search's best
+    /// generations on the whole data. One point can sit where its own neighbourhood happens to be
+    /// smooth; the spread is then pooled within points (what one material's replays disagree by,
+    /// not how far the points differ from one another). 1 (the default): the best point alone.
+    #[serde(default = "default_chaos_points")]
+    pub chaos_points: usize,
+}
+
+fn default_chaos_points() -> usize {
+    1
 }
 
 /// How far [`SmcSettings::chaos_replays`] move each coordinate (share of the box): far below
@@ -172,8 +183,11 @@ pub struct SmcResult {
     pub search: Vec<Generation>,
     /// The likelihood's power `η` the sampler targeted (1 without `chaos_replays`).
     pub likelihood_power: f64,
-    /// The standard deviation of the log-likelihood over the `chaos_replays` replays of one point.
+    /// The standard deviation of the log-likelihood over the `chaos_replays` replays of one point
+    /// (pooled within points when they share several).
     pub chaos_sd: Option<f64>,
+    /// The points the chaos replays shared (0 without them).
+    pub chaos_points: usize,
 }
 
 /// A Gaussian approximation of the posterior at its mode, in the unit cube: `N(mode, F⁻¹)` with
@@ -254,11 +268,11 @@ pub fn sample_refined(
             .collect::<Vec<f64>>())
     };
     let mut search = Vec::new();
-    let (mut power, mut chaos) = (1.0, None);
+    let (mut power, mut chaos, mut chaos_points) = (1.0, None, 0);
     let reference = match &settings.mode_search {
         None => None,
         Some(mode) => {
-            let (cma, best) = search_mode(
+            let (cma, good) = search_mode(
                 dim,
                 mode,
                 &mode.horizons(duration_s),
@@ -266,14 +280,20 @@ pub fn sample_refined(
                 &mut search,
                 &mut |h, p| evaluate(h, p, &mut evaluations),
             )?;
+            let best = good[0].clone();
             let (mean, covariance) = match refine(&best).map_err(SmcError::Likelihood)? {
                 Some(laplace) => (laplace.mode, laplace.covariance),
                 None => (cma.mean(), cma.covariance()),
             };
             if settings.chaos_replays > 0 {
-                let nudged: Vec<Vec<f64>> = (0..settings.chaos_replays)
-                    .map(|_| {
-                        best.iter()
+                let points = &good[..settings.chaos_points.min(good.len())];
+                let per_point = settings.chaos_replays / settings.chaos_points;
+                let nudged: Vec<Vec<f64>> = points
+                    .iter()
+                    .flat_map(|point| std::iter::repeat_n(point, per_point))
+                    .map(|point| {
+                        point
+                            .iter()
                             .map(|&v| {
                                 let u = 2.0 * rng.random::<f64>() - 1.0;
                                 (v + CHAOS_NUDGE * u).clamp(0.0, 1.0)
@@ -281,8 +301,10 @@ pub fn sample_refined(
                             .collect()
                     })
                     .collect();
-                let sd = chaos_sd(&evaluate(None, &nudged, &mut evaluations)?)?;
+                let values = evaluate(None, &nudged, &mut evaluations)?;
+                let sd = chaos_sd(&values.chunks(per_point).collect::<Vec<_>>())?;
                 chaos = Some(sd);
+                chaos_points = points.len();
                 power = (1.0 / sd).min(1.0);
             }
             // The power posterior is wider than the likelihood's by 1/√η (exactly so where it is
@@ -386,28 +408,38 @@ pub fn sample_refined(
         search,
         likelihood_power: power,
         chaos_sd: chaos,
+        chaos_points,
     })
 }
 
-/// The standard deviation of the finite log-likelihoods of one point's nudged replays (a replay
-/// that diverged says nothing about the spread of those that did not).
-fn chaos_sd(values: &[f64]) -> Result<f64, SmcError> {
-    let finite: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
-    if finite.len() < 2 {
+/// The standard deviation of the finite log-likelihoods of nudged replays, pooled within the
+/// points they replay (`groups`, one per point): deviations from each point's own mean over the
+/// degrees of freedom left (a replay that diverged says nothing about the spread of those that
+/// did not). With one point, its sample standard deviation.
+fn chaos_sd(groups: &[&[f64]]) -> Result<f64, SmcError> {
+    let (mut squares, mut freedom, mut total) = (0.0, 0usize, 0usize);
+    for group in groups {
+        let finite: Vec<f64> = group.iter().copied().filter(|v| v.is_finite()).collect();
+        total += group.len();
+        if finite.len() < 2 {
+            continue;
+        }
+        let mean = finite.iter().sum::<f64>() / finite.len() as f64;
+        squares += finite.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+        freedom += finite.len() - 1;
+    }
+    if freedom == 0 {
         return Err(SmcError::Likelihood(format!(
-            "{} of the {} replays of the mode search's best point have a finite likelihood: no \
-             spread to measure",
-            finite.len(),
-            values.len()
+            "the {total} replays of the mode search's good points leave no point with two finite \
+             likelihoods: no spread to measure"
         )));
     }
-    let n = finite.len() as f64;
-    let mean = finite.iter().sum::<f64>() / n;
-    Ok((finite.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt())
+    Ok((squares / freedom as f64).sqrt())
 }
 
 /// Runs the CMA-ES search from the cube's centre, logging each generation into `search`; returns
-/// the search and the best point it evaluated on the last horizon (the whole data).
+/// the search and the best point of each generation on the last horizon (the whole data), best
+/// first (the earlier generation first among equals).
 fn search_mode(
     dim: usize,
     settings: &ModeSearchSettings,
@@ -415,21 +447,23 @@ fn search_mode(
     rng: &mut ChaCha8Rng,
     search: &mut Vec<Generation>,
     evaluate: &mut SearchEvaluate,
-) -> Result<(CmaEs, Vec<f64>), SmcError> {
+) -> Result<(CmaEs, Vec<Vec<f64>>), SmcError> {
     let mut cma = CmaEs::new(&vec![0.5; dim], settings.initial_step, settings.population);
     let mut evaluations = 0;
-    let mut best_on_whole = (cma.mean(), f64::NEG_INFINITY);
+    let mut good: Vec<(Vec<f64>, f64)> = Vec::new();
     for &horizon in horizons {
         for _ in 0..settings.generations {
             let points = cma.ask(rng);
             let values = evaluate(horizon, &points)?;
             evaluations += points.len();
             if horizon.is_none() {
+                let mut best = (cma.mean(), f64::NEG_INFINITY);
                 for (p, &v) in points.iter().zip(&values) {
-                    if v > best_on_whole.1 {
-                        best_on_whole = (p.clone(), v);
+                    if v > best.1 {
+                        best = (p.clone(), v);
                     }
                 }
+                good.push(best);
             }
             cma.tell(&points, &values);
             let mut sorted = values.clone();
@@ -447,7 +481,11 @@ fn search_mode(
             }
         }
     }
-    Ok((cma, best_on_whole.0))
+    if good.is_empty() {
+        good.push((cma.mean(), f64::NEG_INFINITY));
+    }
+    good.sort_by(|a, b| b.1.total_cmp(&a.1));
+    Ok((cma, good.into_iter().map(|(p, _)| p).collect()))
 }
 
 /// The Gaussian reference a mode search hands the sampler, truncated to the unit cube.
@@ -582,6 +620,17 @@ pub fn check_settings(dim: usize, s: &SmcSettings) -> Result<(), SmcError> {
     }
     if s.chaos_replays > 0 && s.mode_search.is_none() {
         return fail("chaos_replays needs [smc.mode_search]: they replay its best point".into());
+    }
+    if !(1..=64).contains(&s.chaos_points)
+        || (s.chaos_replays > 0
+            && (!s.chaos_replays.is_multiple_of(s.chaos_points)
+                || s.chaos_replays / s.chaos_points < 2))
+    {
+        return fail(format!(
+            "chaos_points = {} with chaos_replays = {}: expected 1..=64 points, each taking the \
+             same number (at least 2) of the replays",
+            s.chaos_points, s.chaos_replays
+        ));
     }
     Ok(())
 }
@@ -770,6 +819,7 @@ mod tests {
             mode_search: None,
             polish_iterations: 0,
             chaos_replays: 0,
+            chaos_points: 1,
         }
     }
 
@@ -926,6 +976,33 @@ mod tests {
     }
 
     #[test]
+    fn the_chaos_spread_is_pooled_within_points() {
+        // Two points 100 apart, each replayed twice 2 apart: what one material's replays disagree
+        // by is sqrt((2 + 2) / 2), not the spread across the points (57.7).
+        let sd = chaos_sd(&[&[0.0, 2.0], &[100.0, 102.0]]).unwrap();
+        assert!((sd - 2f64.sqrt()).abs() < 1e-12, "{sd}");
+        // A replay that diverged drops out, and a point left with one finite value with it.
+        let inf = f64::NEG_INFINITY;
+        let sd = chaos_sd(&[&[0.0, 2.0, inf], &[5.0, inf]]).unwrap();
+        assert!((sd - 2f64.sqrt()).abs() < 1e-12, "{sd}");
+        assert!(chaos_sd(&[&[1.0, inf], &[inf, inf]]).is_err());
+        // The replays must split evenly, at least two per point.
+        let settings = |chaos_replays, chaos_points| SmcSettings {
+            chaos_replays,
+            chaos_points,
+            mode_search: Some(search(12, 10, None)),
+            ..settings(1)
+        };
+        assert!(check_settings(2, &settings(16, 4)).is_ok());
+        for (replays, points) in [(16, 3), (16, 9), (16, 0), (16, 65)] {
+            let err = check_settings(2, &settings(replays, points))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("chaos_points"), "{replays} {points}: {err}");
+        }
+    }
+
+    #[test]
     fn chaos_replays_measure_the_roughness_and_sample_the_power_posterior() {
         let tau = 100.0;
         let with = |chaos_replays| SmcSettings {
@@ -961,6 +1038,18 @@ mod tests {
         }
         // Without the replays the sampler chases the roughness: a posterior far narrower than
         // what one material's replays allow.
+        // Shared by four of the search's good points, the replays measure the same roughness
+        // (pooled within the points, not across them).
+        let shared = run(&SmcSettings {
+            chaos_points: 4,
+            ..with(64)
+        });
+        let pooled = shared.chaos_sd.unwrap();
+        assert_eq!(shared.chaos_points, 4);
+        assert!(
+            (pooled / tau - 1.0).abs() < 0.25,
+            "pooled chaos sd {pooled}"
+        );
         let plain = run(&with(0));
         assert_eq!((plain.likelihood_power, plain.chaos_sd), (1.0, None));
         assert!(sd(&plain, 0) < 0.3 * expected, "{}", sd(&plain, 0));

@@ -374,6 +374,7 @@ fn summary_dict<'py>(
     d.set_item("log_evidence", posterior.log_evidence)?;
     d.set_item("likelihood_power", posterior.likelihood_power)?;
     d.set_item("chaos_log_likelihood_sd", posterior.chaos_log_likelihood_sd)?;
+    d.set_item("chaos_points", posterior.chaos_points)?;
     d.set_item("best_log_likelihood", posterior.best_log_likelihood)?;
     d.set_item("polished_evaluations", posterior.polished_evaluations)?;
     Ok(d)
