@@ -349,10 +349,7 @@ fn transport_trains_on_the_shipped_posterior_draws() {
     let root = env!("CARGO_MANIFEST_DIR");
     for (name, posterior) in [
         ("transport-posterior.toml", "coarse-soft-film"),
-        (
-            "transport-sensors-posterior.toml",
-            "global-coarse-real-film-200hz",
-        ),
+        ("transport-sensors-posterior.toml", "real-film-sampled"),
     ] {
         let text = common::tiny_training(name, 16, "2.0").replace(
             "posterior = \"data/",

@@ -343,7 +343,7 @@ mod tests {
                 .unwrap()
                 .rows
                 .len(),
-            39
+            64
         );
         // The cell job trains on the 30 draws its split does not hold out.
         let cell =
