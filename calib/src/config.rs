@@ -153,17 +153,12 @@ impl CalibrateConfig {
         }
         // The merged text's line numbers are none of the files': name the key and the chain.
         Self::parse(&composed.text, path).map_err(|err| match err {
-            ConfigError::Parse { file, .. } => {
-                let text = &composed.text;
-                let message = match toml::from_str::<CalibrateConfig>(text) {
-                    Err(e) => rlpkg_toml_input::error_at(text, &e).1,
-                    Ok(_) => "not a calibration configuration".into(),
-                };
-                ConfigError::Parse {
-                    file,
-                    message: format!("{message} (in {}, merged)", composed.chain()),
-                }
-            }
+            ConfigError::Parse { file, message } => ConfigError::Parse {
+                file,
+                message: composed
+                    .merged_error::<CalibrateConfig>()
+                    .unwrap_or(message),
+            },
             other => other,
         })
     }

@@ -59,18 +59,13 @@ impl Training {
         if !composed.is_merged() {
             return Self::parse(composed.text, path);
         }
-        let (text, chain) = (composed.text.clone(), composed.chain());
-        Self::parse(composed.text, path).map_err(|err| match err {
-            AgentError::ConfigParse { .. } => {
-                let message = match toml::from_str::<TrainingFile>(&text) {
-                    Err(e) => rlpkg_toml_input::error_at(&text, &e).1,
-                    Ok(_) => err.to_string(),
-                };
-                AgentError::ConfigParse {
-                    path: path.into(),
-                    message: format!("{message} (in {chain}, merged)"),
-                }
-            }
+        Self::parse(composed.text.clone(), path).map_err(|err| match err {
+            AgentError::ConfigParse { .. } => AgentError::ConfigParse {
+                path: path.into(),
+                message: composed
+                    .merged_error::<TrainingFile>()
+                    .unwrap_or_else(|| err.to_string()),
+            },
             other => other,
         })
     }

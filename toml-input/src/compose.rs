@@ -41,6 +41,14 @@ impl Composed {
         self.files.len() > 1
     }
 
+    /// Why the merged text does not parse as `T`, naming the key and the chain of files (the
+    /// merged text's line numbers are none of the files'); `None` when it parses.
+    pub fn merged_error<T: serde::de::DeserializeOwned>(&self) -> Option<String> {
+        let e = toml::from_str::<T>(&self.text).err()?;
+        let (_, message) = crate::error_at(&self.text, &e);
+        Some(format!("{message} (in {}, merged)", self.chain()))
+    }
+
     /// "`a.toml` extending `b.toml`, `c.toml`": the chain, for messages.
     pub fn chain(&self) -> String {
         let mut names = self.files.iter().map(|f| f.display().to_string());
