@@ -5,7 +5,6 @@
 //! was kept.
 //!
 //! Tracks are per-frame `Option<[f64; 3]>` series on one uniform time base (`None` = not seen).
-
 //!
 //! One file per concept: [`Series`] and its runs (`series.rs`), the parameters (`config.rs`),
 //! re-identification (`reidentification.rs`) with the film-sheet test it relies on (`sheets.rs`)

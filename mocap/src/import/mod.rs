@@ -7,7 +7,6 @@
 //! package markers are the unlabelled markers; package and object masses come from the config, and
 //! every take must be listed there (or a `[default_take]` given). With a robot trajectory file
 //! (see [`crate::robot`]) the tool track is the robot's command instead of the tool rigid body.
-
 //!
 //! One file per concept: the config (`config.rs`) and its per-take settings (`takes.rs`), the
 //! error (`error.rs`), reading a take file (`take_file.rs`), the conversion of a parsed take
