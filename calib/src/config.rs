@@ -685,6 +685,24 @@ upper = 2.0
     }
 
     #[test]
+    fn the_mixed_packages_v1_posterior_changes_only_the_samplers_reference() {
+        let base = shipped("posterior-packages-v1");
+        let mixed = shipped("posterior-packages-v1-mixed");
+        let (b, m) = (base.smc.unwrap(), mixed.smc.unwrap());
+        assert_eq!((b.prior_share, b.chaos_points), (0.0, 1));
+        assert_eq!((m.prior_share, m.chaos_points), (0.5, 4));
+        let unmixed = crate::smc::SmcSettings {
+            prior_share: 0.0,
+            chaos_points: 1,
+            ..m
+        };
+        assert_eq!(unmixed, b);
+        assert_eq!(mixed.params, base.params);
+        assert_eq!(mixed.trajectories, base.trajectories);
+        assert_ne!(mixed.out_dir, base.out_dir);
+    }
+
+    #[test]
     fn an_smc_config_samples_instead_of_optimising_and_names_one_method() {
         let optimiser = GOOD.find("[optimiser]").unwrap();
         let end = GOOD.find("[loss]").unwrap();

@@ -634,6 +634,7 @@ mod tests {
             polish_iterations: 0,
             chaos_replays: 0,
             chaos_points: 1,
+            prior_share: 0.0,
         };
         let weights = LossWeights {
             object: 1.0,

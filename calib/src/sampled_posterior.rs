@@ -820,6 +820,7 @@ mod tests {
             polish_iterations: 0,
             chaos_replays: 2,
             chaos_points: 1,
+            prior_share: 0.0,
         }
     }
 

@@ -84,6 +84,17 @@ pub struct SmcSettings {
     /// not how far the points differ from one another). 1 (the default): the best point alone.
     #[serde(default = "default_chaos_points")]
     pub chaos_points: usize,
+    /// Share of the sampler's reference that is the prior (uniform on the box), the rest the
+    /// Gaussian the mode search (or the polish's Laplace approximation) hands it: a defensive
+    /// mixture (Hesterberg 1995). Why: that Gaussian's width comes from the search's last steps or
+    /// from finite differences of the likelihood at one point, and where the likelihood is rough
+    /// those say nothing about how wide the posterior is; a population drawn from a reference
+    /// narrower than the posterior stays inside it. With part of the reference on the whole box,
+    /// the tempering path `q^(1−β) · (prior · L^η)^β` has support everywhere the posterior has,
+    /// and the likelihood alone decides the width. 0 (the default): the Gaussian alone. Needs a
+    /// mode search.
+    #[serde(default)]
+    pub prior_share: f64,
 }
 
 fn default_chaos_points() -> usize {
@@ -95,9 +106,29 @@ fn default_chaos_points() -> usize {
 pub const CHAOS_NUDGE: f64 = 1e-6;
 
 impl SmcSettings {
+    /// The sampler in a few words, for a sentence: "CMA-ES mode search (P x at most G
+    /// generations), then N particles x M moves", with the prior's share of the reference when it
+    /// has one.
+    pub fn sampler_text(&self) -> String {
+        let mixed = if self.prior_share > 0.0 {
+            format!(
+                ", {:.0} % of the reference from the prior",
+                100.0 * self.prior_share
+            )
+        } else {
+            String::new()
+        };
+        format!(
+            "{}{} particles x {} moves{mixed}",
+            self.mode_search_text(),
+            self.particles,
+            self.moves
+        )
+    }
+
     /// "CMA-ES mode search (P x at most G generations), then " when the sampler has one, for a
     /// sentence describing the sampler; empty otherwise.
-    pub fn mode_search_text(&self) -> String {
+    fn mode_search_text(&self) -> String {
         self.mode_search.map_or(String::new(), |m| {
             let horizon = m.first_horizon_s.map_or(String::new(), |h| {
                 format!(" per horizon, from the first {h} s doubling to the whole recordings")
@@ -310,7 +341,12 @@ pub fn sample_refined(
             // The power posterior is wider than the likelihood's by 1/√η (exactly so where it is
             // Gaussian): the reference too.
             let covariance = covariance * (mode.reference_scale.powi(2) / power);
-            Some(Reference::new(mean, covariance, &mut rng)?)
+            Some(Reference::new(
+                mean,
+                covariance,
+                settings.prior_share,
+                &mut rng,
+            )?)
         }
     };
     let log_reference = |p: &[f64]| reference.as_ref().map_or(0.0, |r| r.log_density(p));
@@ -488,13 +524,16 @@ fn search_mode(
     Ok((cma, good.into_iter().map(|(p, _)| p).collect()))
 }
 
-/// The Gaussian reference a mode search hands the sampler, truncated to the unit cube.
+/// The reference a mode search hands the sampler: a Gaussian truncated to the unit cube, mixed
+/// with the prior (uniform on the cube) by [`SmcSettings::prior_share`].
 struct Reference {
     mean: DVector<f64>,
     /// Lower Cholesky factor of the covariance.
     factor: DMatrix<f64>,
     /// `ln` of the truncated density's normalising constant (Gaussian and box share together).
     log_normaliser: f64,
+    /// The prior's share of the mixture.
+    prior_share: f64,
 }
 
 /// Draws of the reference used to measure its share inside the box.
@@ -504,6 +543,7 @@ impl Reference {
     fn new(
         mean: Vec<f64>,
         covariance: DMatrix<f64>,
+        prior_share: f64,
         rng: &mut ChaCha8Rng,
     ) -> Result<Self, SmcError> {
         let dim = mean.len();
@@ -519,6 +559,7 @@ impl Reference {
             mean: DVector::from_vec(mean),
             factor,
             log_normaliser: 0.0,
+            prior_share,
         };
         let inside = (0..REFERENCE_SHARE_DRAWS)
             .filter(|_| in_cube(&reference.propose(rng)))
@@ -540,34 +581,52 @@ impl Reference {
         (&self.mean + &self.factor * z).iter().copied().collect()
     }
 
-    /// `n` draws inside the box (rejection).
+    /// `n` draws inside the box: each from the prior with probability `prior_share`, else from
+    /// the truncated Gaussian (by rejection: the component is chosen once per draw, so that the
+    /// draws follow [`Self::log_density`] however much of the Gaussian lies outside the box).
     fn draw(&self, n: usize, rng: &mut ChaCha8Rng) -> Result<Vec<Vec<f64>>, SmcError> {
         let mut draws = Vec::with_capacity(n);
-        for _ in 0..n.saturating_mul(REFERENCE_SHARE_DRAWS) {
-            if draws.len() == n {
-                break;
+        let most = n.saturating_mul(REFERENCE_SHARE_DRAWS);
+        let mut proposals = 0usize;
+        while draws.len() < n {
+            if self.prior_share > 0.0 && rng.random::<f64>() < self.prior_share {
+                draws.push((0..self.mean.len()).map(|_| rng.random::<f64>()).collect());
+                continue;
             }
-            let p = self.propose(rng);
-            if in_cube(&p) {
-                draws.push(p);
+            loop {
+                if proposals == most {
+                    return Err(SmcError::ReferenceOutside {
+                        share: draws.len() as f64 / most as f64,
+                    });
+                }
+                proposals += 1;
+                let p = self.propose(rng);
+                if in_cube(&p) {
+                    draws.push(p);
+                    break;
+                }
             }
-        }
-        if draws.len() < n {
-            return Err(SmcError::ReferenceOutside {
-                share: draws.len() as f64 / (n * REFERENCE_SHARE_DRAWS) as f64,
-            });
         }
         Ok(draws)
     }
 
-    /// The truncated density's logarithm at `p` (inside the box).
+    /// The mixture's density's logarithm at `p` (inside the box; the prior's density is 1 there).
     fn log_density(&self, p: &[f64]) -> f64 {
         let d = DVector::from_column_slice(p) - &self.mean;
         let z = self
             .factor
             .solve_lower_triangular(&d)
             .expect("a Cholesky factor with a positive diagonal");
-        -0.5 * z.norm_squared() - self.log_normaliser
+        let gaussian = -0.5 * z.norm_squared() - self.log_normaliser;
+        if self.prior_share == 0.0 {
+            return gaussian;
+        }
+        let (g, u) = (
+            (1.0 - self.prior_share).ln() + gaussian,
+            self.prior_share.ln(),
+        );
+        let top = g.max(u);
+        top + ((g - top).exp() + (u - top).exp()).ln()
     }
 }
 
@@ -620,6 +679,13 @@ pub fn check_settings(dim: usize, s: &SmcSettings) -> Result<(), SmcError> {
     }
     if s.chaos_replays > 0 && s.mode_search.is_none() {
         return fail("chaos_replays needs [smc.mode_search]: they replay its best point".into());
+    }
+    if !(0.0..1.0).contains(&s.prior_share) || (s.prior_share > 0.0 && s.mode_search.is_none()) {
+        return fail(format!(
+            "prior_share = {}: expected in [0, 1), and a [smc.mode_search] whose reference it \
+             mixes with the prior",
+            s.prior_share
+        ));
     }
     if !(1..=64).contains(&s.chaos_points)
         || (s.chaos_replays > 0
@@ -820,6 +886,7 @@ mod tests {
             polish_iterations: 0,
             chaos_replays: 0,
             chaos_points: 1,
+            prior_share: 0.0,
         }
     }
 
@@ -833,6 +900,12 @@ mod tests {
         assert_eq!(
             with.mode_search_text(),
             "CMA-ES mode search (16 x at most 50 generations), then "
+        );
+        with.prior_share = 0.5;
+        assert_eq!(
+            with.sampler_text(),
+            "CMA-ES mode search (16 x at most 50 generations), then 2000 particles x 4 moves, \
+             50 % of the reference from the prior"
         );
         with.mode_search = Some(search(16, 50, Some(0.5)));
         assert!(with
@@ -1054,6 +1127,120 @@ mod tests {
         assert_eq!((plain.likelihood_power, plain.chaos_sd), (1.0, None));
         assert!(sd(&plain, 0) < 0.3 * expected, "{}", sd(&plain, 0));
         assert!(powered.log_likelihoods.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn a_reference_mixed_with_the_prior_lets_the_likelihood_set_the_width() {
+        // A 10-D Gaussian posterior as wide as a tempered film's (sd 0.08-0.12 of the box per
+        // axis), sampled by a population a simulator can afford (64, two moves per stage), with
+        // the refinement handing the sampler a Laplace approximation fifty times narrower than
+        // the posterior (what finite differences of a rough likelihood at one point give). From
+        // that reference alone the population stays too narrow and misses the centre on a third
+        // of the axes; with half of it on the prior, the likelihood sets the width.
+        let dim = 10;
+        let centre: Vec<f64> = (0..dim).map(|i| 0.35 + 0.03 * i as f64).collect();
+        let sd: Vec<f64> = (0..dim).map(|i| 0.08 + 0.004 * i as f64).collect();
+        let ll = |p: &[f64]| -> f64 {
+            (0..dim)
+                .map(|a| -0.5 * ((p[a] - centre[a]) / sd[a]).powi(2))
+                .sum()
+        };
+        let run = |prior_share, seed| {
+            let settings = SmcSettings {
+                particles: 64,
+                moves: 2,
+                final_moves: 2,
+                prior_share,
+                mode_search: Some(search(16, 30, None)),
+                ..settings(seed)
+            };
+            sample_refined(
+                dim,
+                &settings,
+                1.0,
+                |_, _, points| Ok(points.iter().map(|p| ll(p)).collect()),
+                |best| {
+                    let narrow = sd.iter().map(|s| (s / 50.0).powi(-2)).collect::<Vec<_>>();
+                    Ok(Some(Laplace::from_information(
+                        best.to_vec(),
+                        &DMatrix::from_diagonal(&DVector::from_vec(narrow)),
+                        0.1,
+                    )))
+                },
+            )
+            .unwrap()
+        };
+        // Per axis: does the 90 % interval cover the centre, and its width over the exact one.
+        let intervals = |result: &SmcResult| {
+            (0..dim)
+                .map(|a| {
+                    let mut u: Vec<f64> = result.draws.iter().map(|p| p[a]).collect();
+                    u.sort_by(f64::total_cmp);
+                    let (low, high) = (u[3], u[60]);
+                    (
+                        low < centre[a] && centre[a] < high,
+                        (high - low) / (2.0 * 1.645 * sd[a]),
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        // Over twelve seeds: the share of the 120 intervals that cover the centre, and their mean
+        // width over the exact ones.
+        let over_seeds = |prior_share| {
+            let all: Vec<(bool, f64)> = (0..12)
+                .flat_map(|seed| intervals(&run(prior_share, seed)))
+                .collect();
+            let covered = all.iter().filter(|(covers, _)| *covers).count();
+            (
+                covered,
+                all.iter().map(|(_, w)| w).sum::<f64>() / all.len() as f64,
+            )
+        };
+        let (covered, width) = over_seeds(0.5);
+        assert!(
+            covered >= 110 && (0.7..1.3).contains(&width),
+            "{covered} {width}"
+        );
+        let (covered, width) = over_seeds(0.0);
+        assert!(covered <= 90 && width < 0.65, "{covered} {width}");
+        // A share must leave the Gaussian some of the reference, and needs a search to have one.
+        for (share, search_too) in [(1.0, true), (-0.1, true), (0.5, false)] {
+            let s = SmcSettings {
+                prior_share: share,
+                mode_search: search_too.then(|| search(12, 10, None)),
+                ..settings(1)
+            };
+            let err = check_settings(2, &s).unwrap_err().to_string();
+            assert!(err.contains("prior_share"), "{share}: {err}");
+        }
+    }
+
+    #[test]
+    fn the_mixed_reference_draws_what_its_density_says() {
+        // A Gaussian mostly outside the box (mean at its edge, sd 1: a third inside), half the
+        // mixture on the prior: the share of draws per tenth of the box matches the density's
+        // integral there (a draw that picks the Gaussian keeps it until a proposal lands inside).
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let reference =
+            Reference::new(vec![1.0], DMatrix::from_element(1, 1, 1.0), 0.5, &mut rng).unwrap();
+        let n = 200_000;
+        let draws = reference.draw(n, &mut rng).unwrap();
+        for bin in 0..10 {
+            let (low, high) = (0.1 * bin as f64, 0.1 * (bin + 1) as f64);
+            let share =
+                draws.iter().filter(|p| low <= p[0] && p[0] < high).count() as f64 / n as f64;
+            let steps = 200;
+            let mass: f64 = (0..steps)
+                .map(|k| {
+                    let x = low + (k as f64 + 0.5) * (high - low) / steps as f64;
+                    reference.log_density(&[x]).exp() * (high - low) / steps as f64
+                })
+                .sum();
+            assert!(
+                (share - mass).abs() < 0.003,
+                "bin {bin}: {share} drawn, {mass} density"
+            );
+        }
     }
 
     #[test]

@@ -280,16 +280,14 @@ fn run_posterior(
     write_record(out_dir, &record)?;
     println!(
         "sampling the posterior of {} parameter(s) on {} trajectory(ies) [{}], grid {}x{}, dt {:.3e} s, \
-         {}{} particles x {} moves; output in {}",
+         {}; output in {}",
         config.params.len(),
         ids.len(),
         ids.join(","),
         scene.package.grid[0],
         scene.package.grid[1],
         scene.dt(),
-        smc.mode_search_text(),
-        smc.particles,
-        smc.moves,
+        smc.sampler_text(),
         out_dir.display()
     );
     println!("{}", config.likelihood.replicas_text());

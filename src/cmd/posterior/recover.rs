@@ -192,12 +192,10 @@ fn run_sampled(
     let space = config.space();
     let draws = recovery::draw_truths(&space, truths, args.seed);
     println!(
-        "recovering {truths} truth(s) of {} parameter(s) with a sampled posterior ({}{} particles x {} moves) \
+        "recovering {truths} truth(s) of {} parameter(s) with a sampled posterior ({}) \
          on {} synthetic trajectory(ies) [{}], marker noise {:.3} mm per axis; output in {}",
         space.dim(),
-        smc.mode_search_text(),
-        smc.particles,
-        smc.moves,
+        smc.sampler_text(),
         ids.len(),
         ids.join(","),
         1e3 * noise_std_m,
