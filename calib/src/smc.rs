@@ -1129,6 +1129,27 @@ mod tests {
         assert!(powered.log_likelihoods.iter().all(|v| v.is_finite()));
     }
 
+    /// Per axis of `result`'s draws: whether the 90 % interval (between the 5 % and 95 % order
+    /// statistics) covers `centre`, and its width over the exact one of a Gaussian of sd `sd`.
+    fn ninety_percent_intervals(
+        result: &SmcResult,
+        centre: &[f64],
+        sd: &[f64],
+    ) -> Vec<(bool, f64)> {
+        let n = result.draws.len();
+        (0..centre.len())
+            .map(|a| {
+                let mut u: Vec<f64> = result.draws.iter().map(|p| p[a]).collect();
+                u.sort_by(f64::total_cmp);
+                let (low, high) = (u[n * 5 / 100], u[n * 95 / 100]);
+                (
+                    low < centre[a] && centre[a] < high,
+                    (high - low) / (2.0 * 1.645 * sd[a]),
+                )
+            })
+            .collect()
+    }
+
     #[test]
     fn a_reference_mixed_with_the_prior_lets_the_likelihood_set_the_width() {
         // A 10-D Gaussian posterior as wide as a tempered film's (sd 0.08-0.12 of the box per
@@ -1170,20 +1191,7 @@ mod tests {
             )
             .unwrap()
         };
-        // Per axis: does the 90 % interval cover the centre, and its width over the exact one.
-        let intervals = |result: &SmcResult| {
-            (0..dim)
-                .map(|a| {
-                    let mut u: Vec<f64> = result.draws.iter().map(|p| p[a]).collect();
-                    u.sort_by(f64::total_cmp);
-                    let (low, high) = (u[3], u[60]);
-                    (
-                        low < centre[a] && centre[a] < high,
-                        (high - low) / (2.0 * 1.645 * sd[a]),
-                    )
-                })
-                .collect::<Vec<_>>()
-        };
+        let intervals = |result: &SmcResult| ninety_percent_intervals(result, &centre, &sd);
         // Over twelve seeds: the share of the 120 intervals that cover the centre, and their mean
         // width over the exact ones.
         let over_seeds = |prior_share| {
@@ -1333,20 +1341,7 @@ mod tests {
             .unwrap();
             (result, handed)
         };
-        // Per axis: does the 90 % interval cover the centre, and its width over the exact one.
-        let intervals = |result: &SmcResult| {
-            (0..dim)
-                .map(|a| {
-                    let mut u: Vec<f64> = result.draws.iter().map(|p| p[a]).collect();
-                    u.sort_by(f64::total_cmp);
-                    let (low, high) = (u[1], u[30]);
-                    (
-                        low < centre[a] && centre[a] < high,
-                        (high - low) / (2.0 * 1.645 * sd[a]),
-                    )
-                })
-                .collect::<Vec<_>>()
-        };
+        let intervals = |result: &SmcResult| ninety_percent_intervals(result, &centre, &sd);
         let (refined, handed) = run(true);
         assert!(
             ll(&handed) < -5.0,
