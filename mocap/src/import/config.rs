@@ -65,7 +65,7 @@ impl Default for ConversionConfig {
 /// `[package]`: physical properties written to every `meta.toml` (masses per take in `[takes]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct PackageConfig {
+pub struct PackageProperties {
     /// Package footprint (short side, long side) in m.
     #[serde(deserialize_with = "rlpkg_toml_input::array")]
     pub size_m: [f64; 2],
@@ -87,9 +87,9 @@ pub struct PackageConfig {
     pub lower_marker_positions_m: Vec<[f64; 3]>,
 }
 
-impl Default for PackageConfig {
+impl Default for PackageProperties {
     fn default() -> Self {
-        PackageConfig {
+        PackageProperties {
             size_m: [0.254, 0.3048],
             mass_kg: 0.03,
             object_diameter_m: 0.16,
@@ -109,7 +109,7 @@ pub struct ImportConfig {
     /// Take -> trajectory mapping.
     pub conversion: ConversionConfig,
     /// Package and object properties.
-    pub package: PackageConfig,
+    pub package: PackageProperties,
     /// Per-take manifest fields, by take id (the file name without `.csv` / `.csv.gz`).
     pub takes: BTreeMap<String, TakeConfig>,
     /// Robot-to-mocap transform for takes imported with their robot trajectory file.

@@ -23,7 +23,7 @@ mod takes;
 #[cfg(test)]
 mod tests;
 
-pub use config::{ConversionConfig, ImportConfig, MarkerSource, PackageConfig};
+pub use config::{ConversionConfig, ImportConfig, MarkerSource, PackageProperties};
 pub use conversion::{convert, convert_with_robot, ImportedTake};
 pub use error::ImportError;
 pub use report::{RetentionReport, RobotFit};
