@@ -235,29 +235,21 @@ fn config_errors_name_file_key_and_range() {
         msg.contains("package.marker_inset_m = [0.02, 0.2]: expected 2 numbers in [0, 0.127) m"),
         "{msg}"
     );
-    std::fs::write(
-        &path,
-        format!("[conversion]\ntool_body = \"Gripper\"\n{DEFAULT_TAKE}"),
-    )
-    .unwrap();
-    let config = ImportConfig::load(&path).unwrap();
-    let msg = import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config)
-        .unwrap_err()
-        .to_string();
+    // What importing the excerpt says under a config whose text is `text` and the default take.
+    let import_error = |text: &str| {
+        std::fs::write(&path, format!("{text}{DEFAULT_TAKE}")).unwrap();
+        let config = ImportConfig::load(&path).unwrap();
+        import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config)
+            .unwrap_err()
+            .to_string()
+    };
+    let msg = import_error("[conversion]\ntool_body = \"Gripper\"\n");
     assert!(
         msg.contains("no rigid body named 'Gripper'") && msg.contains("[\"Tool\", \"Object\"]"),
         "{msg}"
     );
     // A cut-off above the Nyquist frequency of the take is caught when the take's rate is known.
-    std::fs::write(
-        &path,
-        format!("[cleaning]\nmarker_cutoff_hz = 200.0\n{DEFAULT_TAKE}"),
-    )
-    .unwrap();
-    let config = ImportConfig::load(&path).unwrap();
-    let msg = import_take(&fixture("a30_m0.5_high_excerpt.csv.gz"), &config)
-        .unwrap_err()
-        .to_string();
+    let msg = import_error("[cleaning]\nmarker_cutoff_hz = 200.0\n");
     assert!(
         msg.contains("a30_m0.5_high_excerpt.csv.gz") && msg.contains("(0, 125) Hz"),
         "{msg}"
